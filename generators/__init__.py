@@ -1,0 +1,1 @@
+"""univtac_data.generators"""

@@ -1,0 +1,95 @@
+"""Factories for episodes and datasets in tests: small, deterministic, spec-conforming.
+
+The arrays are synthetic (a pressed blob moving across the pad), not physics; the generator tests use
+real scenes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from univtac_data import CameraInfo, Episode, EpisodeMeta, GeneratorInfo, SafetySummary, get_sensor
+from univtac_data.storage import DatasetWriter
+
+
+def make_episode(sensor: str = "gelsight_mini", n_frames: int = 4, episode_id: str = "ep0", *, seed: int = 0,
+                 kind: str = "indenter", name: str = "sphere", cameras: tuple[str, ...] = (),
+                 camera_depth: bool = False, objects: tuple[str, ...] = ("indenter",),
+                 rate_hz: float = 60.0) -> Episode:
+    """A conforming episode of ``n_frames`` frames for ``sensor``; ``seed`` changes every array."""
+    profile = get_sensor(sensor)
+    rng = np.random.default_rng(seed)
+    h, w, n = profile.image_height_px, profile.image_width_px, profile.n_markers
+    arrays: dict[str, np.ndarray] = {"timestamps_ns": (np.arange(n_frames, dtype=np.int64) * int(1e9 / rate_hz))}
+    yy, xx = np.mgrid[0:h, 0:w]
+    gx, gy = np.meshgrid(np.arange(profile.marker_cols), np.arange(profile.marker_rows))
+    ref = np.stack([profile.cx_px + (gx.ravel() - (profile.marker_cols - 1) / 2) * profile.marker_pitch_x_mm
+                    * profile.fx_px / profile.camera_to_surface_mm,
+                    profile.cy_px + (gy.ravel() - (profile.marker_rows - 1) / 2) * profile.marker_pitch_y_mm
+                    * profile.fy_px / profile.camera_to_surface_mm], axis=1).astype(np.float32)
+    for pad in ("left", "right"):
+        depth = np.zeros((n_frames, h, w), np.uint16)
+        centre = np.array([w / 2, h / 2]) + rng.normal(0, 5, 2)
+        for t in range(n_frames):
+            r2 = (xx - centre[0] - 2 * t) ** 2 + (yy - centre[1]) ** 2
+            depth[t] = np.clip(300 * (1 - r2 / (30.0 ** 2)), 0, None).astype(np.uint16) * (t > 0)
+        base = np.array(profile.optics.background_rgb, np.uint8)
+        pure = np.broadcast_to(base, (n_frames, h, w, 3)).copy()
+        pure[..., 0] = np.clip(pure[..., 0].astype(np.int32) + depth // 4, 0, 255).astype(np.uint8)
+        marked = pure.copy()
+        for u, v in ref.astype(int):
+            marked[:, max(v - 2, 0):v + 3, max(u - 2, 0):u + 3] = 20
+        arrays[f"tactile/{pad}/pure_rgb"] = pure
+        arrays[f"tactile/{pad}/marked_rgb"] = marked
+        arrays[f"tactile/{pad}/depth_um"] = depth
+        arrays[f"tactile/{pad}/contact_mask"] = depth > 0
+        arrays[f"tactile/{pad}/markers_ref_px"] = ref
+        arrays[f"tactile/{pad}/markers_px"] = (ref[None] + rng.normal(0, 0.3, (n_frames, n, 2))).astype(np.float32)
+        pose = np.zeros((n_frames, 7))
+        pose[:, 2] = 0.002 - 1e-4 * np.arange(n_frames)
+        pose[:, 3] = 1.0
+        arrays[f"tactile/{pad}/object_pose"] = pose
+        arrays[f"tactile/{pad}/normal_force_n"] = (depth.reshape(n_frames, -1).sum(1) * 1e-6).astype(np.float32)
+        arrays[f"tactile/{pad}/shear_force_n"] = rng.normal(0, 0.01, (n_frames, 2)).astype(np.float32)
+        arrays[f"tactile/{pad}/slip_mm"] = np.zeros(n_frames, np.float32)
+    ee = np.zeros((n_frames, 7))
+    ee[:, 2] = 0.1 + 0.001 * np.arange(n_frames)
+    ee[:, 3] = 1.0
+    arrays["robot/ee_pose"] = ee
+    arrays["robot/gripper_width_m"] = np.linspace(0.04, 0.03, n_frames, dtype=np.float32)
+    arrays["robot/finger_pos_m"] = np.stack([np.linspace(0, 0.005, n_frames)] * 2, 1).astype(np.float32)
+    action = np.concatenate([ee, arrays["robot/gripper_width_m"][:, None]], 1).astype(np.float32)
+    arrays["robot/action"] = action
+    arrays["scene/primitive"] = np.array([0] * (n_frames // 2) + [1] * (n_frames - n_frames // 2), np.int16)
+    camera_infos = []
+    for cam in cameras:
+        camera_infos.append(CameraInfo(name=cam, width_px=64, height_px=48, fovy_deg=60, depth=camera_depth,
+                                       mount="gripper" if cam == "wrist" else "world"))
+        arrays[f"scene/cameras/{cam}/rgb"] = rng.integers(0, 255, (n_frames, 48, 64, 3), dtype=np.uint8)
+        if camera_depth:
+            arrays[f"scene/cameras/{cam}/depth_m"] = rng.uniform(0.2, 2.0, (n_frames, 48, 64)).astype(np.float32)
+    for obj in objects:
+        arrays[f"scene/objects/{obj}/pose"] = ee.copy()
+    max_depth = max(float(arrays[f"tactile/{p}/depth_um"].max()) for p in ("left", "right")) / 1000
+    meta = EpisodeMeta(
+        episode_id=episode_id, kind=kind, name=name, sensor=sensor, seed=seed,  # type: ignore[arg-type]
+        generator=GeneratorInfo(name="tests.factories", version="0", settings={"n_frames": n_frames}),
+        success=None if kind == "indenter" else True,
+        safety=SafetySummary(max_indentation_mm=max_depth, max_slip_mm=0.0,
+                             max_normal_force_n=float(max(arrays[f"tactile/{p}/normal_force_n"].max()
+                                                          for p in ("left", "right")))),
+        nominal_rate_hz=rate_hz, n_frames=n_frames, cameras=camera_infos, objects=list(objects),
+        tactile_object=objects[0] if objects else None, primitive_names=["grasp", "rotate"],
+    )
+    return Episode(meta=meta, arrays=arrays)
+
+
+def make_dataset(root: Path | str, storage: str = "hdf5", n_episodes: int = 2, *, sensor: str = "gelsight_mini",
+                 n_frames: int = 4, cameras: tuple[str, ...] = (), **kwargs: object) -> Path:
+    """A dataset of ``n_episodes`` episodes (ids ep0, ep1, ...) at ``root``; returns ``root``."""
+    writer = DatasetWriter.open(root, storage=storage, sensors=[sensor])
+    for k in range(n_episodes):
+        writer.add(make_episode(sensor, n_frames, f"ep{k}", seed=k, cameras=cameras, **kwargs))  # type: ignore[arg-type]
+    return Path(root)

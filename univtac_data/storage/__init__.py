@@ -1,0 +1,26 @@
+"""Storage: one writer and one reader interface over two backends (HDF5, Zarr v3)."""
+
+from univtac_data.storage.backend import EpisodeHandle, EpisodeStore
+from univtac_data.storage.dataset import (
+    STORES,
+    Dataset,
+    DatasetWriter,
+    ReindexReport,
+    WrittenEpisode,
+    write_episode_file,
+)
+from univtac_data.storage.errors import (
+    CorruptFileError,
+    DatasetError,
+    DatasetNotFoundError,
+    EpisodeExistsError,
+    FormatVersionError,
+    NotADatasetError,
+)
+from univtac_data.storage.fs import Location
+
+__all__ = [
+    "STORES", "CorruptFileError", "Dataset", "DatasetError", "DatasetNotFoundError", "DatasetWriter",
+    "EpisodeExistsError", "EpisodeHandle", "EpisodeStore", "FormatVersionError", "Location", "NotADatasetError",
+    "ReindexReport", "WrittenEpisode", "write_episode_file",
+]

@@ -1,0 +1,111 @@
+"""The storage interface: an episode store writes a whole episode and opens one for lazy reading."""
+
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ValidationError
+
+from univtac_data.episode import Episode
+from univtac_data.schema.fields import field_for_path
+from univtac_data.schema.models import EpisodeMeta
+from univtac_data.storage.errors import CorruptFileError
+from univtac_data.storage.fs import Location
+from univtac_data.version import check_readable
+
+META_ATTR = "univtac_meta"
+VERSION_ATTR = "format_version"
+
+
+def _prune_unknown(model: type[BaseModel], data: Any) -> Any:
+    """Drop keys a newer minor version added, so that this reader's models accept the rest."""
+    if not isinstance(data, dict):
+        return data
+    out = {}
+    for key, value in data.items():
+        if key not in model.model_fields:
+            continue
+        annotation = model.model_fields[key].annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            value = _prune_unknown(annotation, value)
+        out[key] = value
+    return out
+
+
+def parse_episode_meta(raw: Any, where: str) -> EpisodeMeta:
+    """Episode metadata from its stored JSON (text or object); errors name ``where``."""
+    try:
+        data = json.loads(raw) if isinstance(raw, (str, bytes)) else raw
+    except json.JSONDecodeError as error:
+        raise CorruptFileError(f"{where}: episode metadata is not valid JSON ({error.msg})") from None
+    if not isinstance(data, dict) or "format_version" not in data:
+        raise CorruptFileError(f"{where}: episode metadata has no format_version")
+    if check_readable(str(data["format_version"]), where):
+        data = _prune_unknown(EpisodeMeta, data)
+    try:
+        return EpisodeMeta.model_validate(data)
+    except ValidationError as error:
+        first = error.errors()[0]
+        loc = ".".join(str(p) for p in first["loc"]) or "metadata"
+        raise CorruptFileError(f"{where}: episode metadata field {loc}: {first['msg']}") from None
+
+
+class EpisodeHandle(ABC):
+    """An open episode: metadata now, arrays on demand. Not picklable: open one per process."""
+
+    meta: EpisodeMeta
+    where: str
+
+    @abstractmethod
+    def paths(self) -> list[str]:
+        """Concrete array paths stored in the episode, sorted."""
+
+    @abstractmethod
+    def _read_raw(self, path: str, index: Any) -> np.ndarray: ...
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+    def read(self, path: str, index: Any = ()) -> np.ndarray:
+        """Array ``path`` (or ``index`` of it: an int frame, a slice...) in its logical dtype.
+
+        Raises ``CorruptFileError`` naming the file when the data cannot be decoded or fails its checksum.
+        """
+        spec = field_for_path(path)
+        try:
+            array = self._read_raw(path, index)
+        except KeyError:
+            raise CorruptFileError(f"{self.where}: field {path} is missing") from None
+        except Exception as error:  # h5py/zarr/blosc raise many types for damaged chunks
+            raise CorruptFileError(f"{self.where}: cannot read {path} ({type(error).__name__}: {error})") from None
+        if spec is not None and spec.dtype == "bool":
+            return np.asarray(array) != 0
+        return np.asarray(array)
+
+    def load(self) -> Episode:
+        """Every array the format defines, read whole (paths a newer minor version added are skipped)."""
+        arrays = {p: self.read(p) for p in self.paths() if field_for_path(p) is not None}
+        return Episode(meta=self.meta, arrays=arrays)
+
+    def __enter__(self) -> EpisodeHandle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class EpisodeStore(ABC):
+    """One storage backend. ``write`` produces a complete, durable episode at ``relpath`` (a temporary
+    name chosen by the dataset writer); ``open`` reads one."""
+
+    storage: str
+    suffix: str
+
+    @abstractmethod
+    def write(self, episode: Episode, loc: Location, relpath: str) -> None: ...
+
+    @abstractmethod
+    def open(self, loc: Location, relpath: str) -> EpisodeHandle: ...

@@ -1,0 +1,89 @@
+"""HDF5 backend: one file per episode (the ACT / RoboTwin / UniVTAC convention), local paths only."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import h5py
+import hdf5plugin
+import numpy as np
+
+from univtac_data.episode import Episode, meta_json
+from univtac_data.schema.fields import field_for_path
+from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
+from univtac_data.storage.encoding import encoding_for
+from univtac_data.storage.errors import CorruptFileError, DatasetError
+from univtac_data.storage.fs import Location, fsync_tree
+
+
+def _blosc(cname: str, clevel: int, shuffle: str) -> hdf5plugin.Blosc:
+    mode = hdf5plugin.Blosc.BITSHUFFLE if shuffle == "bit" else hdf5plugin.Blosc.SHUFFLE
+    return hdf5plugin.Blosc(cname=cname, clevel=clevel, shuffle=mode)
+
+
+class HDF5Handle(EpisodeHandle):
+    def __init__(self, path: str, where: str) -> None:
+        self.where = where
+        try:
+            self._file = h5py.File(path, "r", locking=False)
+        except FileNotFoundError:
+            raise CorruptFileError(f"{where}: file is missing") from None
+        except OSError as error:
+            raise CorruptFileError(f"{where}: not a readable HDF5 file ({_first_line(error)})") from None
+        try:
+            raw = self._file.attrs[META_ATTR]
+        except Exception:
+            self._file.close()
+            raise CorruptFileError(f"{where}: no '{META_ATTR}' attribute (not a univtac-data episode)") from None
+        try:
+            self.meta = parse_episode_meta(raw, where)
+        except Exception:
+            self._file.close()
+            raise
+
+    def paths(self) -> list[str]:
+        found: list[str] = []
+        self._file.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+        return sorted(found)
+
+    def _read_raw(self, path: str, index: Any) -> np.ndarray:
+        if path not in self._file:
+            raise KeyError(path)
+        return self._file[path][index]
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _first_line(error: BaseException) -> str:
+    return str(error).splitlines()[0] if str(error) else type(error).__name__
+
+
+class HDF5Store(EpisodeStore):
+    storage = "hdf5"
+    suffix = ".h5"
+
+    def write(self, episode: Episode, loc: Location, relpath: str) -> None:
+        if not loc.is_local:
+            raise DatasetError(f"{loc.url}: HDF5 datasets need a local path; use --format zarr for URLs")
+        path = os.path.join(loc.root, relpath)
+        # track_times=False and a fixed libver keep the bytes a function of the content: same seed, same file.
+        with h5py.File(path, "w", libver=("v110", "v110"), track_order=True) as handle:
+            handle.attrs[VERSION_ATTR] = episode.meta.format_version
+            handle.attrs[META_ATTR] = meta_json(episode.meta)
+            for array_path in sorted(episode.arrays):
+                array = episode.arrays[array_path]
+                spec = field_for_path(array_path)
+                assert spec is not None, array_path  # check_episode ran before
+                enc = encoding_for(spec, array.shape)
+                data = array.astype(enc.storage_dtype, copy=False)
+                handle.create_dataset(
+                    array_path, data=data, chunks=enc.chunks if data.size else None, fletcher32=bool(data.size),
+                    track_times=False, **(_blosc(enc.blosc_cname, enc.blosc_clevel, enc.shuffle) if data.size else {}),
+                )
+            handle.flush()
+        fsync_tree(path)
+
+    def open(self, loc: Location, relpath: str) -> HDF5Handle:
+        return HDF5Handle(os.path.join(loc.root, relpath), where=loc.url_of(relpath))

@@ -93,3 +93,11 @@ def make_dataset(root: Path | str, storage: str = "hdf5", n_episodes: int = 2, *
     for k in range(n_episodes):
         writer.add(make_episode(sensor, n_frames, f"ep{k}", seed=k, cameras=cameras, **kwargs))  # type: ignore[arg-type]
     return Path(root)
+
+
+if __name__ == "__main__":
+    # `python tests/factories.py OUT [hdf5|zarr]`: a small synthetic dataset to try the CLI on.
+    import sys
+
+    out = make_dataset(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "hdf5", 4, n_frames=30, cameras=("head",))
+    print(f"wrote a synthetic 4-episode dataset to {out}")

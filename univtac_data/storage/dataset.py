@@ -246,18 +246,18 @@ class DatasetWriter:
     """Owns a dataset's ``meta/`` files while episodes are added. One writer per dataset; workers may
     write episode files in parallel with ``write_episode_file`` and hand the results to ``commit``."""
 
-    def __init__(self, loc: Location, info: DatasetInfo) -> None:
+    def __init__(self, loc: Location, info: DatasetInfo, *, read_existing: bool = True) -> None:
         self.loc = loc
         self.info = info
         self.store = get_store(info.storage)
-        self.index = read_index(loc)
-        self.manifest = read_manifest(loc)
+        self.index = read_index(loc) if read_existing else {}
+        self.manifest = read_manifest(loc) if read_existing else Manifest()
 
     @classmethod
-    def open(cls, path: str | os.PathLike[str], storage: str = "hdf5", sensors: list[str] | None = None) \
-            -> DatasetWriter:
+    def open(cls, path: str | os.PathLike[str], storage: str = "hdf5", sensors: list[str] | None = None, *,
+             recover: bool = True) -> DatasetWriter:
         """Create the dataset at ``path``, or reopen it to add episodes (resume). Reopening removes
-        leftovers of killed writers and indexes finished episodes that missed the index."""
+        leftovers of killed writers and indexes finished episodes that missed the index (``recover``)."""
         loc = Location.parse(path)
         get_store(storage)
         if loc.exists(INFO_PATH):
@@ -273,7 +273,8 @@ class DatasetWriter:
             info.sensors.setdefault(name, get_sensor(name))
         write_info(loc, info)
         writer = cls(loc, info)
-        writer.recover()
+        if recover:
+            writer.recover()
         return writer
 
     def has(self, episode_id: str) -> bool:
@@ -323,6 +324,17 @@ class DatasetWriter:
 
     def index_path(self, episode_id: str) -> str:
         return episode_relpath(episode_id, self.store)
+
+    @classmethod
+    def reindex_dataset(cls, path: str | os.PathLike[str]) -> ReindexReport:
+        """Rebuild the index and manifest of the dataset at ``path`` without reading the old ones (they may
+        be the damaged part)."""
+        loc = Location.parse(path)
+        if not loc.exists():
+            raise DatasetNotFoundError(f"{loc.url}: no such file or directory")
+        if not loc.exists(INFO_PATH):
+            raise NotADatasetError(f"{loc.url}: not a univtac-data dataset (no {INFO_PATH})")
+        return cls(loc, read_info(loc), read_existing=False).reindex()
 
     def reindex(self) -> ReindexReport:
         """Rebuild index and manifest from the episodes on disk, hashing every file."""

@@ -1,0 +1,35 @@
+"""The README's commands are the ones CI runs, and its Python example works."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from factories import make_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bash_blocks() -> list[str]:
+    return re.findall(r"```bash\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S)
+
+
+def test_ci_runs_the_readme_test_command():
+    blocks = _bash_blocks()
+    test_command = next(b for b in blocks if "pytest" in b).strip()
+    ci = (ROOT / ".ci/run").read_text().splitlines()
+    assert test_command in ci, ".ci/run must run the README's test command verbatim"
+
+
+def test_readme_main_command_installs_torch_first():
+    main = _bash_blocks()[0]
+    assert main.index("pip install torch==2.13.0") < main.index("pip install -e .")
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    make_dataset(tmp_path / "out/demo", "hdf5", 2, n_frames=12)
+    text = (ROOT / "README.md").read_text()
+    example = re.search(r"```python\n(.*?)\n```", text, flags=re.S).group(1)  # type: ignore[union-attr]
+    exec(compile(example, "README.md", "exec"), {})
+    assert (tmp_path / "out/copy/episodes/ep1.zarr").is_dir()

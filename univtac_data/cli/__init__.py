@@ -1,0 +1,1 @@
+"""The ``univtac-data`` command line."""

@@ -1,0 +1,47 @@
+"""``univtac-data``: one entry point, one module per subcommand.
+
+Each subcommand module has ``add_parser(subparsers)`` and ``run(args) -> int``. Errors a user can cause
+(``DatasetError``) print one line and exit 2; anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from univtac_data.storage.errors import DatasetError
+from univtac_data.version import FORMAT_VERSION, __version__
+
+SUBCOMMANDS = ("info", "convert", "reindex")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="univtac-data",
+        description="Visuo-tactile robot data: generate, validate, inspect and convert univtac-data datasets.",
+    )
+    parser.add_argument("--version", action="version", version=f"univtac-data {__version__} (format {FORMAT_VERSION})")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in SUBCOMMANDS:
+        module = importlib.import_module(f"univtac_data.cli.{name}")
+        sub = module.add_parser(subparsers)
+        sub.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args))
+    except DatasetError as error:
+        print(f"univtac-data: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("univtac-data: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

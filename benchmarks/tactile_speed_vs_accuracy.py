@@ -1,0 +1,208 @@
+"""Tactile speed vs accuracy: time per pad-frame (gap -> both images) on one core, error against Hertz.
+
+    OMP_NUM_THREADS=1 python benchmarks/tactile_speed_vs_accuracy.py
+
+Writes benchmarks/results/tactile_speed_vs_accuracy.json and docs/figures/tactile_speed_vs_accuracy.png,
+plus the gap-field comparison (analytic/rasterised vs mujoco.mj_multiRay) that decided the gap backend.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import json  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+
+from univtac_data.generators.tactile import (  # noqa: E402
+    ContactConfig, TactileConfig, gap_field, pad_pose, sensor_grid, simulate_frame, sphere_gap,
+)
+from univtac_data.schema.sensors import SENSORS, get_sensor  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = [(5.0, 0.4), (8.0, 0.25), (3.0, 0.5)]  # sphere radius, depth (mm)
+
+
+def machine() -> dict[str, object]:
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "threads_used": 1, "python": platform.python_version(),
+            "numpy": np.__version__, "scipy": scipy.__version__, "mujoco": mujoco.__version__}
+
+
+def timed(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
+    fn()
+    samples = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - t)
+    return float(np.median(samples)) * 1e3
+
+
+def hertz_errors(profile, method: str, config: TactileConfig) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    es = profile.material.youngs_modulus_mpa / (1 - profile.material.poisson_ratio**2)
+    f_err, a_err = [], []
+    for radius, depth in CASES:
+        frame = simulate_frame(profile, sphere_gap(profile, radius, depth), method=method, config=config)
+        force = 4 / 3 * es * np.sqrt(radius) * depth**1.5
+        a = np.sqrt(radius * depth)
+        a_meas = np.sqrt(frame.contact_mask.sum() * profile.mm_per_px_x * profile.mm_per_px_y / np.pi)
+        f_err.append(abs(float(frame.normal_force_n) / force - 1))
+        a_err.append(abs(a_meas / a - 1))
+    return {"force_error_max": max(f_err), "radius_error_max": max(a_err)}
+
+
+def speed_vs_accuracy(repeats: int) -> list[dict[str, object]]:
+    rows = []
+    for name, profile in SENSORS.items():
+        gap = sphere_gap(profile, 5.0, 0.4)
+        settings = [("geometric", 1)] + [("elastic", s) for s in (1, 2, 3, 4)]
+        for method, step in settings:
+            config = TactileConfig(contact=ContactConfig(method=method, solver_step=step))  # type: ignore[arg-type]
+            ms = timed(lambda: simulate_frame(profile, gap, method=method, config=config), repeats)  # noqa: B023
+            errs = hertz_errors(profile, method, config)
+            rows.append({"sensor": name, "method": method, "solver_step": step,
+                         "image": f"{profile.image_width_px}x{profile.image_height_px}", "ms_per_pad_frame": ms, **errs})
+            print(f"{name:14s} {method:9s} step {step}: {ms:7.2f} ms  F err {errs['force_error_max']*100:5.2f} %  "
+                  f"a err {errs['radius_error_max']*100:5.2f} %")
+    return rows
+
+
+def stage_profile(repeats: int) -> dict[str, float]:
+    """Where an elastic GelSight Mini frame spends its time (ms, median)."""
+    from univtac_data.generators.tactile.contact import solve_contact
+    from univtac_data.generators.tactile.frame import _solver_gap
+    from univtac_data.generators.tactile.markers import draw_markers
+    from univtac_data.generators.tactile.optics import render_shaded
+    from univtac_data.generators.tactile.sensor_model import downsample_mean
+    from univtac_data.generators.tactile.shear import solve_shear
+
+    p = get_sensor("gelsight_mini")
+    gap = sphere_gap(p, 5.0, 0.4)
+    grid, grid_sh = sensor_grid(p, 2), sensor_grid(p, 4)
+    g2 = _solver_gap(gap, 2)
+    res = solve_contact(g2, grid, p.material, ContactConfig())
+    psh = downsample_mean(res.pressure_mpa, 2, "constant")
+    frame = simulate_frame(p, gap)
+    out = {
+        "solver_gap_downsample": timed(lambda: _solver_gap(gap, 2), repeats),
+        "elastic_solve_incl_full_grid_displacement": timed(lambda: solve_contact(g2, grid, p.material, ContactConfig()), repeats),
+        "shear_and_radial_marker_field": timed(lambda: solve_shear(psh, psh > 0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm,
+                                                                    grid_sh.y_mm, p.material, (0, 0), 0.0, None), repeats),
+        "shaded_render": timed(lambda: render_shaded(frame.depth_mm, p), repeats),
+        "draw_markers": timed(lambda: draw_markers(frame.pure_rgb, frame.markers_px, 6.0, (20, 20, 20)), repeats),
+        "total": timed(lambda: simulate_frame(p, gap), repeats),
+    }
+    out["upsampling_and_rest"] = out["total"] - sum(v for k, v in out.items() if k != "total")
+    return out
+
+
+def gap_backends(repeats: int) -> dict[str, object]:
+    """Analytic/rasterised gap field vs mj_multiRay (one ray per pixel from the pinhole) at 320 x 240."""
+    xml = """<mujoco><asset><mesh name="ico" builtin="sphere" params="3"/></asset><worldbody>
+      <body name="sensor"><site name="pad"/></body>
+      <geom name="ball" type="sphere" size="0.005" pos="0 0 0.0046"/>
+      <geom name="meshball" type="mesh" mesh="ico" pos="0.03 0 0.0046" size="0.005" /></worldbody></mujoco>"""
+    xml = xml.replace('mesh="ico" pos', 'mesh="ico" pos').replace('params="3"', 'params="3" scale="0.005 0.005 0.005"')
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    p = get_sensor("gelsight_mini")
+    grid = sensor_grid(p, 1)
+    pose = pad_pose(model, data, "pad")
+    analytic_ms = timed(lambda: gap_field(model, data, pose, ["ball"], grid), repeats)
+    ref = gap_field(model, data, pose, ["ball"], grid)
+    mesh_pose = pad_pose(model, data, "pad")
+    shifted = type(mesh_pose)(mesh_pose.rotation, mesh_pose.origin_mm + np.array([30.0, 0.0, 0.0]))
+    mesh_ms = timed(lambda: gap_field(model, data, shifted, ["meshball"], grid), repeats)
+    mesh_gap = gap_field(model, data, shifted, ["meshball"], grid)
+    hit = (ref < 5) & (mesh_gap < 5)
+    mesh_err = float(np.abs(mesh_gap[hit] - ref[hit]).max())
+    # mj_multiRay: rays from the camera pinhole through every pixel; the pad body is excluded
+    c = p.camera_to_surface_mm / 1000.0
+    x, y = grid.mesh()
+    vec = np.stack([x / 1000.0, y / 1000.0, np.full_like(x, c)], axis=-1).reshape(-1, 3)
+    vec /= np.linalg.norm(vec, axis=1, keepdims=True)
+    n = vec.shape[0]
+    geomid = np.zeros(n, np.int32)
+    dist = np.zeros(n)
+    origin = np.array([0.0, 0.0, -c])
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "sensor")
+
+    def multiray() -> None:
+        mujoco.mj_multiRay(model, data, origin, vec.ravel(), None, 1, body, geomid, dist, None, n, 1.0)
+
+    ray_ms = timed(multiray, max(3, repeats // 4))
+    multiray()
+    hitz = -c + dist * vec[:, 2]
+    ok = (dist > 0) & (ref.ravel() < 0.0)  # rays in the overlap start outside the ball (the pinhole is behind the gel)
+    ray_err = float(np.abs(hitz[ok] * 1000.0 - ref.ravel()[ok]).max()) if ok.any() else float("nan")
+    return {"image": "320x240", "analytic_sphere_ms": analytic_ms, "rasterised_mesh_sphere_ms": mesh_ms,
+            "rasterised_mesh_vs_analytic_max_mm": mesh_err, "mj_multiRay_ms": ray_ms,
+            "mj_multiRay_max_error_mm_in_overlap": ray_err}
+
+
+def chart(rows: list[dict[str, object]], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    markers = {"gelsight_mini": "o", "gf225": "s", "xense_ws": "^"}
+    for row in rows:
+        colour = "tab:orange" if row["method"] == "geometric" else "tab:blue"
+        ax.scatter(row["ms_per_pad_frame"], 100 * float(row["force_error_max"]), marker=markers[str(row["sensor"])],
+                   color=colour, s=50)
+        label = "geom" if row["method"] == "geometric" else f"s{row['solver_step']}"
+        ax.annotate(label, (row["ms_per_pad_frame"], 100 * float(row["force_error_max"])), fontsize=7,
+                    xytext=(4, 3), textcoords="offset points")
+    for name, m in markers.items():
+        ax.scatter([], [], marker=m, color="grey", label=name)
+    ax.scatter([], [], color="tab:blue", label="elastic (sN: solver step N px)")
+    ax.scatter([], [], color="tab:orange", label="geometric")
+    ax.axhline(3.0, color="k", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_ylim(0.0, 7.0)
+    ax.set_xlabel("time per pad-frame, gap -> both images (ms, one core)")
+    ax.set_ylabel("max Hertz force error (%)")
+    ax.set_title("Tactile speed vs accuracy (3 spheres per sensor)")
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    repeats = int(os.environ.get("BENCH_REPEATS", "30"))
+    rows = speed_vs_accuracy(repeats)
+    stages = stage_profile(repeats)
+    print("elastic GelSight Mini stages (ms):", {k: round(v, 2) for k, v in stages.items()})
+    gaps = gap_backends(repeats)
+    print("gap field backends:", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gaps.items()})
+    result = {"machine": machine(), "hertz_cases_radius_depth_mm": CASES, "rows": rows,
+              "elastic_mini_stage_ms": stages, "gap_field": gaps}
+    out = ROOT / "benchmarks" / "results" / "tactile_speed_vs_accuracy.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    chart(rows, ROOT / "docs" / "figures" / "tactile_speed_vs_accuracy.png")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""The contact step's contract: configuration, result, and the dispatch over the two methods.
+
+``solve_contact(gap_mm, grid, material, config)`` turns a gap field on a grid into the deformed gel surface.
+One method per file: :mod:`.contact_geometric` (clipped, smoothed overlap; cheap) and
+:mod:`.contact_elastic` (linear-elastic half-space, Polonsky & Keer conjugate gradient).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from univtac_data.schema.sensors import Material
+
+from .sensor_model import SensorGrid
+
+__all__ = ["ContactConfig", "ContactMethod", "ContactResult", "solve_contact"]
+
+ContactMethod = Literal["geometric", "elastic"]
+
+GAP_FAR_MM = 1.0e3
+"""Gap value meaning 'no object along this ray', mm (any value well above every indentation works)."""
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """How to solve the contact. Defaults meet the Hertz accuracy targets at the sensors' native sizes."""
+
+    method: ContactMethod = "elastic"
+    solver_step: int = 2  # image pixels per solver cell along each axis (elastic); 1 = native resolution
+    tol: float = 1e-6  # elastic: relative change of the pressure field that stops the CG
+    max_iter: int = 300  # elastic: CG iteration cap (convergence is reported in ContactResult.converged)
+    window_margin: float = 0.5  # elastic: solve window = overlap bounding box grown by this fraction per side
+    smooth_sigma_mm: float = 0.25  # geometric: Gaussian skirt around the overlap, mm
+    smooth_levels: int = 2  # geometric: blur levels (sigma, sigma/2, ...), contact region restored after each
+
+
+@dataclass(frozen=True)
+class ContactResult:
+    """Deformed surface and loads of one pad, on the grid the solver ran on.
+
+    ``depth_mm``: (ny, nx) float64 indentation of the gel surface toward the camera, mm, >= 0.
+    ``pressure_mpa``: (ny, nx) float64 normal pressure, MPa, >= 0. ``contact_mask``: (ny, nx) bool, p > 0
+    (elastic) or overlap > 0 (geometric). ``normal_force_n``: total normal load, N.
+    ``iterations``/``converged``: elastic CG bookkeeping (0/True for the geometric method).
+    """
+
+    depth_mm: np.ndarray
+    pressure_mpa: np.ndarray
+    contact_mask: np.ndarray
+    normal_force_n: float
+    iterations: int = 0
+    converged: bool = True
+
+
+def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig) -> ContactResult:
+    """Solve the normal contact of a gap field (ny, nx) mm (negative = overlap) on ``grid``."""
+    if gap_mm.shape != grid.shape:
+        raise ValueError(f"gap field shape must match the grid {grid.shape} (got {gap_mm.shape})")
+    if config.method == "geometric":
+        from .contact_geometric import solve_geometric
+
+        return solve_geometric(gap_mm, grid, material, config)
+    if config.method == "elastic":
+        from .contact_elastic import solve_elastic
+
+        return solve_elastic(gap_mm, grid, material, config)
+    raise ValueError(f"contact method must be 'geometric' or 'elastic' (got {config.method!r})")

@@ -1,0 +1,206 @@
+"""The public entry point: one pad, one frame, from a gap field to everything the format stores.
+
+``simulate_frame(profile, gap_mm, ...)`` runs gap -> contact solve -> shear and markers -> optics and returns
+a :class:`TactileFrame` whose arrays fill the format's per-pad fields exactly (dtypes, native H x W).
+Stick/slip history travels in ``frame.state`` (a :class:`ContactState`), passed to the next call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from univtac_data.schema.sensors import SensorProfile
+
+from .contact import GAP_FAR_MM, ContactConfig, ContactMethod, solve_contact
+from .markers import draw_markers, sample_bilinear
+from .optics import ShadingConfig, render_shaded
+from .optics_calibrated import TaximCalibration
+from .sensor_model import downsample_mean, marker_reference_mm, project_to_px, sensor_grid, upsample_linear
+from .shear import ContactState, solve_shear
+
+__all__ = ["TactileConfig", "TactileFrame", "simulate_frame"]
+
+CONTACT_TOL_MM = 1e-3
+"""A pixel is in contact when the gel surface is within this distance of the object (1 um, the depth_um
+quantum)."""
+
+
+@dataclass(frozen=True)
+class TactileConfig:
+    """Everything about the simulation that is not sensor data or per-frame input."""
+
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    shading: ShadingConfig = field(default_factory=ShadingConfig)
+    shear_step: int = 4  # image pixels per cell of the tangential solve and in-plane displacement field
+    perspective_markers: bool = True  # project markers at their pressed height z = -D (pinhole parallax)
+    calibration: TaximCalibration | None = None  # Taxim-format calibrated optics instead of the shaded model
+    optics: Literal["shaded", "calibrated"] = "shaded"
+
+
+@dataclass(frozen=True, eq=False)
+class TactileFrame:
+    """One pad, one frame. Image-grid arrays are (H, W) at the sensor's native resolution, gel-pad frame.
+
+    ``depth_mm``: (H, W) float32 indentation toward the camera, mm, >= 0. ``depth_um``: (H, W) uint16, the
+    same in integer micrometres. ``pressure_mpa``: (H, W) float32 normal pressure, MPa. ``contact_mask``:
+    (H, W) bool. ``normal_force_n``: float32 N. ``shear_force_n``: (2,) float32 N along pad x, y (force of the
+    object on the gel). ``markers_ref_px``/``markers_px``: (N, 2) float32 (u = column, v = row) px.
+    ``slip_mm``: float32, sliding since contact onset (0 while stuck). ``pure_rgb``/``marked_rgb``:
+    (H, W, 3) uint8. ``state``: pass to the next frame's call. ``converged``/``iterations``: elastic solver.
+    """
+
+    depth_mm: np.ndarray
+    depth_um: np.ndarray
+    pressure_mpa: np.ndarray
+    contact_mask: np.ndarray
+    normal_force_n: np.float32
+    shear_force_n: np.ndarray
+    markers_ref_px: np.ndarray
+    markers_px: np.ndarray
+    slip_mm: np.float32
+    pure_rgb: np.ndarray
+    marked_rgb: np.ndarray
+    state: ContactState
+    converged: bool = True
+    iterations: int = 0
+
+
+def _solver_gap(gap: np.ndarray, step: int) -> np.ndarray:
+    """Gap on the solver grid: block mean, except that blocks straddling an overlap edge average only the
+    overlap (clipped at 0), so a sharp edge keeps its area-weighted depth instead of drowning in GAP_FAR."""
+    if step == 1:
+        return gap
+    mean = downsample_mean(gap, step)
+    neg = downsample_mean(np.minimum(gap, 0.0), step)
+    return np.where(neg < 0.0, neg, mean)
+
+
+def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -> np.ndarray:
+    """Solver-grid pressure (ny, nx) -> image grid (H, W), MPa.
+
+    Near a contact edge the pressure goes like sqrt(distance), so p^2 is close to linear there: p^2 is
+    extended one cell past the edge by linear extrapolation from the two inner neighbours (negative
+    outside), interpolated bilinearly, clipped at 0 and rooted, and kept only on the image-grid contact mask.
+    Interpolating p itself would halve the pressure in the last half cell of the contact.
+    """
+    if step == 1:
+        return np.where(fine_mask, pressure, 0.0)
+    q = pressure * pressure
+    inside = pressure > 0.0
+    total = np.zeros_like(q)
+    count = np.zeros_like(q)
+    for axis in (0, 1):
+        for shift in (1, -1):
+            nb1 = np.roll(q, shift, axis)
+            nb2 = np.roll(q, 2 * shift, axis)
+            ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
+            total += np.where(ok, 2.0 * nb1 - nb2, 0.0)
+            count += ok
+    q = np.where(count > 0, total / np.maximum(count, 1.0), q)
+    fine = upsample_linear(q, step, fine_mask.shape)
+    return np.where(fine_mask, np.sqrt(np.maximum(fine, 0.0)), 0.0)
+
+
+def _to_micrometres(depth_mm: np.ndarray) -> np.ndarray:
+    """(H, W) mm >= 0 -> uint16 um, rounded, saturating at 65535."""
+    um = depth_mm * 1000.0
+    um += 0.5
+    np.minimum(um, float(np.iinfo(np.uint16).max), out=um)
+    return um.astype(np.uint16)
+
+
+def simulate_frame(
+    profile: SensorProfile,
+    gap_mm: np.ndarray,
+    *,
+    method: ContactMethod | None = None,
+    tangential_mm: tuple[float, float] = (0.0, 0.0),
+    twist_rad: float = 0.0,
+    state: ContactState | None = None,
+    noise_seed: int | None = None,
+    config: TactileConfig | None = None,
+) -> TactileFrame:
+    """Simulate one pad for one frame.
+
+    ``gap_mm``: (H, W) signed distance along the pad normal from the undeformed gel to the object, mm,
+    negative = overlap; +inf or any value >= ``GAP_FAR_MM`` means no object. ``method``: "geometric" or
+    "elastic" (default: ``config.contact.method``). ``tangential_mm``: object displacement (x, y) in the pad
+    frame, mm; ``twist_rad``: its rotation about the pad normal, rad; both relative to contact onset when
+    ``state`` is None, else absolute (the state remembers the onset). ``noise_seed``: seeded sensor noise.
+    """
+    config = config or TactileConfig()
+    contact_cfg = config.contact
+    if method is not None and method != contact_cfg.method:
+        contact_cfg = ContactConfig(**{**contact_cfg.__dict__, "method": method})
+    h, w = profile.image_height_px, profile.image_width_px
+    gap = np.asarray(gap_mm, dtype=np.float64)
+    if gap.shape != (h, w):
+        raise ValueError(f"gap_mm must be (H, W) = ({h}, {w}) for sensor {profile.name!r} (got {gap.shape})")
+    if np.isnan(gap).any():
+        raise ValueError("gap_mm contains NaN")
+    gap = np.minimum(gap, GAP_FAR_MM)
+    material = profile.material
+
+    step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
+    grid = sensor_grid(profile, step)
+    result = solve_contact(_solver_gap(gap, step), grid, material, contact_cfg)
+    overlap = np.maximum(-gap, 0.0)
+    surface = upsample_linear(result.depth_mm, step, (h, w))
+    depth = np.maximum(surface, overlap)
+    if step == 1:
+        contact = result.contact_mask
+    else:
+        # the solver's mask is per solver cell; on the image grid, contact is where the gel meets the object
+        contact = (overlap > 0.0) & (overlap >= surface - CONTACT_TOL_MM)
+    pressure = _upsample_pressure(result.pressure_mpa, step, contact)
+
+    shear_step = step * max(1, -(-config.shear_step // step))
+    grid_sh = sensor_grid(profile, shear_step)
+    factor = shear_step // step
+    p_sh = downsample_mean(result.pressure_mpa, factor, "constant")
+    shear = solve_shear(
+        p_sh, p_sh > 0.0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm, grid_sh.y_mm, material,
+        tangential_mm, twist_rad, state,
+    )
+
+    ref_mm = marker_reference_mm(profile)
+    ref_px = project_to_px(profile, ref_mm)
+    if result.normal_force_n > 0.0:
+        moved = ref_mm + sample_bilinear(shear.displacement_mm, grid_sh.x_mm, grid_sh.y_mm, ref_mm).T
+        grid_img = sensor_grid(profile, 1)
+        z = -sample_bilinear(depth, grid_img.x_mm, grid_img.y_mm, ref_mm) if config.perspective_markers else 0.0
+        markers_px = project_to_px(profile, moved, z)
+    else:
+        markers_px = ref_px
+
+    if config.optics == "calibrated":
+        if config.calibration is None:
+            raise ValueError("optics='calibrated' needs TactileConfig.calibration (load_taxim_calibration(folder))")
+        pure = config.calibration.render(depth, (profile.mm_per_px_x, profile.mm_per_px_y))
+        if noise_seed is not None:
+            noise = np.random.default_rng(noise_seed).normal(0.0, config.shading.noise_std, pure.shape)
+            pure = np.clip(np.rint(pure + noise), 0, 255).astype(np.uint8)
+    else:
+        pure = render_shaded(depth, profile, config.shading, noise_seed)
+    marked = draw_markers(pure, markers_px, profile.marker_radius_px, profile.optics.marker_rgb)
+
+    depth32 = depth.astype(np.float32)
+    return TactileFrame(
+        depth_mm=depth32,
+        depth_um=_to_micrometres(depth),
+        pressure_mpa=pressure.astype(np.float32),
+        contact_mask=contact,
+        normal_force_n=np.float32(result.normal_force_n),
+        shear_force_n=shear.shear_force_n.astype(np.float32),
+        markers_ref_px=ref_px.astype(np.float32),
+        markers_px=np.asarray(markers_px, dtype=np.float32),
+        slip_mm=np.float32(shear.slip_mm),
+        pure_rgb=pure,
+        marked_rgb=marked,
+        state=shear.state,
+        converged=result.converged,
+        iterations=result.iterations,
+    )

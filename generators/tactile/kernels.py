@@ -1,0 +1,130 @@
+"""Influence coefficients of a linear-elastic half-space for uniform tractions on rectangular cells, and
+their zero-padded FFT convolution.
+
+A cell of size ``dx x dy`` (mm) carries a uniform traction (MPa). The surface displacement (mm) it causes at
+offset (X, Y) = (x - x_cell, y - y_cell) is the integral of the point-load solution over the cell:
+
+* normal pressure -> normal displacement (Boussinesq, integrated by Love 1929):
+  ``u_z = 1 / (pi E*) * S[F]``, ``F(X, Y) = X asinh(Y/|X|) + Y asinh(X/|Y|)`` (the primitive of 1/r);
+* normal pressure -> in-plane displacement (radial, zero for nu = 0.5):
+  ``u_x = -(1 - 2 nu) / (4 pi G) * S[Hr]``, ``Hr(X, Y) = X atan(Y/X) + Y/2 ln(X^2 + Y^2)`` (primitive of X/r^2);
+* tangential traction along x -> in-plane displacement (Cerruti):
+  ``u_x = 1 / (2 pi G) * S[(1 - nu) F + nu Hxx]``, ``Hxx(X, Y) = Y asinh(X/|Y|)`` (primitive of X^2/r^3),
+  ``u_y = nu / (2 pi G) * S[-r]`` (primitive of XY/r^3), and symmetrically for a traction along y.
+
+``S[f]`` is the four-corner sum ``f(X+a, Y+b) - f(X+a, Y-b) - f(X-a, Y+b) + f(X-a, Y-b)`` with ``a = dx/2``,
+``b = dy/2``. The tangential -> normal coupling (proportional to 1 - 2 nu, small for silicone at nu ~ 0.48) is
+neglected. E* = E / (1 - nu^2), G = E / (2 (1 + nu)).
+
+Convolutions are circular FFTs over a grid padded to twice the field size in each direction, so a field of
+(ny, nx) cells sees every other cell of the same grid exactly (no wrap-around). Kernel spectra are cached per
+(shape, cell size, material).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import scipy.fft as sfft
+
+__all__ = ["KernelSet", "convolve", "kernel_set"]
+
+
+def _asinh_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """num * asinh(den / |num|) with the limit 0 at num = 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = num * np.arcsinh(den / np.abs(num))
+    return np.where(num == 0.0, 0.0, out)
+
+
+def _f_inv_r(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return _asinh_ratio(x, y) + _asinh_ratio(y, x)
+
+
+def _h_xx(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return _asinh_ratio(y, x)
+
+
+def _h_xy(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return -np.hypot(x, y)
+
+
+def _h_radial(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(x == 0.0, 0.0, x * np.arctan(y / x))
+        r2 = x * x + y * y
+        b = np.where(r2 == 0.0, 0.0, 0.5 * y * np.log(np.where(r2 == 0.0, 1.0, r2)))
+    return a + b
+
+
+def _corner_sum(f, x: np.ndarray, y: np.ndarray, a: float, b: float) -> np.ndarray:  # type: ignore[no-untyped-def]
+    return f(x + a, y + b) - f(x + a, y - b) - f(x - a, y + b) + f(x - a, y - b)
+
+
+class KernelSet:
+    """Spectra (rfft2 over the padded (2 ny, 2 nx) grid) of the influence coefficients for one grid.
+
+    ``zz``: pressure -> u_z (mm per MPa); ``rx``/``ry``: pressure -> u_x / u_y (radial term);
+    ``xx``, ``xy``, ``yy``: tangential traction -> in-plane displacement (``xy`` serves both couplings).
+    Spatial kernels are built lazily, the normal one always.
+    """
+
+    def __init__(self, shape: tuple[int, int], dx: float, dy: float, e_mpa: float, nu: float) -> None:
+        self.shape = shape
+        self.pad_shape = (2 * shape[0], 2 * shape[1])
+        ny, nx = shape
+        # offsets of the padded circular grid: 0..n-1 then -n..-1
+        oy = np.fft.ifftshift(np.arange(-ny, ny)) * dy
+        ox = np.fft.ifftshift(np.arange(-nx, nx)) * dx
+        self._x, self._y = np.meshgrid(ox, oy)
+        self._a, self._b = dx / 2.0, dy / 2.0
+        self.e_star = e_mpa / (1.0 - nu * nu)
+        self.g = e_mpa / (2.0 * (1.0 + nu))
+        self.nu = nu
+        self.zz = self._spectrum(_corner_sum(_f_inv_r, self._x, self._y, self._a, self._b) / (np.pi * self.e_star))
+        self._tangential: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._radial: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _spectrum(self, k: np.ndarray) -> np.ndarray:
+        return sfft.rfft2(k, workers=1)
+
+    def tangential(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(xx, xy, yy) spectra: traction (MPa) -> in-plane displacement (mm)."""
+        if self._tangential is None:
+            x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g
+            f = _corner_sum(_f_inv_r, x, y, a, b)
+            hxx = _corner_sum(_h_xx, x, y, a, b)
+            hyy = _corner_sum(_h_xx, y, x, b, a)
+            hxy = _corner_sum(_h_xy, x, y, a, b)
+            c = 1.0 / (2.0 * np.pi * g)
+            self._tangential = (
+                self._spectrum(c * ((1.0 - nu) * f + nu * hxx)),
+                self._spectrum(c * nu * hxy),
+                self._spectrum(c * ((1.0 - nu) * f + nu * hyy)),
+            )
+        return self._tangential
+
+    def radial(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rx, ry) spectra: normal pressure (MPa) -> in-plane displacement (mm), toward the load for nu < 0.5."""
+        if self._radial is None:
+            x, y, a, b = self._x, self._y, self._a, self._b
+            c = -(1.0 - 2.0 * self.nu) / (4.0 * np.pi * self.g)
+            self._radial = (
+                self._spectrum(c * _corner_sum(_h_radial, x, y, a, b)),
+                self._spectrum(c * _corner_sum(_h_radial, y, x, b, a)),
+            )
+        return self._radial
+
+
+@lru_cache(maxsize=64)
+def kernel_set(shape: tuple[int, int], dx: float, dy: float, e_mpa: float, nu: float) -> KernelSet:
+    """Cached :class:`KernelSet` for a field of ``shape`` (ny, nx) cells of ``dx x dy`` mm."""
+    return KernelSet(shape, dx, dy, e_mpa, nu)
+
+
+def convolve(field: np.ndarray, spectrum: np.ndarray, pad_shape: tuple[int, int]) -> np.ndarray:
+    """Linear (non-circular) convolution of ``field`` (ny, nx) with a kernel given by its padded spectrum."""
+    ny, nx = field.shape
+    out = sfft.irfft2(sfft.rfft2(field, s=pad_shape, workers=1) * spectrum, s=pad_shape, workers=1)
+    return out[:ny, :nx]

@@ -1,0 +1,152 @@
+"""Accuracy of the contact and shear models against closed-form contact mechanics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from univtac_data.generators.tactile import (
+    ContactConfig, cylinder_gap, punch_gap, sensor_grid, simulate_frame, solve_contact, sphere_gap,
+)
+from univtac_data.generators.tactile.sensor_model import downsample_mean
+from univtac_data.generators.tactile.shear import solve_shear
+from univtac_data.schema.sensors import Material, get_sensor
+
+MINI = get_sensor("gelsight_mini")
+
+
+def e_star(material: Material) -> float:
+    return material.youngs_modulus_mpa / (1.0 - material.poisson_ratio**2)
+
+
+def contact_radius(mask: np.ndarray, pixel_area: float) -> float:
+    return float(np.sqrt(np.count_nonzero(mask) * pixel_area / np.pi))
+
+
+@pytest.mark.parametrize("radius, depth", [(5.0, 0.4), (8.0, 0.25)])
+def test_hertz_force_radius_and_pressure(radius: float, depth: float) -> None:
+    frame = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="elastic")
+    es = e_star(MINI.material)
+    force = 4.0 / 3.0 * es * np.sqrt(radius) * depth**1.5
+    a = np.sqrt(radius * depth)
+    assert frame.converged
+    assert float(frame.normal_force_n) == pytest.approx(force, rel=0.03)
+    assert contact_radius(frame.contact_mask, MINI.mm_per_px_x * MINI.mm_per_px_y) == pytest.approx(a, rel=0.03)
+    x, y = sensor_grid(MINI, 1).mesh()
+    r = np.hypot(x, y)
+    p0 = 3.0 * force / (2.0 * np.pi * a * a)
+    inside = r < 0.9 * a
+    hertz = p0 * np.sqrt(1.0 - (r[inside] / a) ** 2)
+    assert np.max(np.abs(frame.pressure_mpa[inside] - hertz)) < 0.05 * p0
+
+
+def test_hertz_sink_in_outside_the_contact() -> None:
+    radius, depth = 5.0, 0.4
+    frame = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="elastic")
+    x, y = sensor_grid(MINI, 1).mesh()
+    r = np.hypot(x, y)
+    a = np.sqrt(radius * depth)
+    ring = (r > 1.5 * a) & (r < np.sqrt(2.0 * radius * depth))
+    # outside the contact the gel is pressed below the sphere's overlap, and it keeps sinking in further out
+    overlap = np.maximum(-sphere_gap(MINI, radius, depth), 0.0)
+    assert np.all(frame.depth_mm[ring] > overlap[ring])
+    far = (r > 3 * a) & (r < 3 * a + 0.2)
+    assert 0.0 < float(frame.depth_mm[far].mean()) < 0.5 * depth
+
+
+@pytest.mark.parametrize("depth", [0.05, 0.1, 0.2])
+def test_flat_punch_force_is_linear_in_depth(depth: float) -> None:
+    a = 3.0
+    frame = simulate_frame(MINI, punch_gap(MINI, a, depth), method="elastic")
+    assert float(frame.normal_force_n) == pytest.approx(2.0 * a * e_star(MINI.material) * depth, rel=0.03)
+
+
+def test_cerruti_far_field_and_anisotropy() -> None:
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.5, friction=1.0, source="test")
+    grid = sensor_grid(MINI, 2)
+    x, y = grid.mesh()
+    rho2 = x**2 + y**2
+    gap = np.where(rho2 < 9.0, 3.0 - np.sqrt(np.maximum(9.0 - rho2, 0.0)) - 0.1, 1e3)
+    result = solve_contact(gap, grid, material, ContactConfig())
+    shear = solve_shear(
+        result.pressure_mpa, result.contact_mask, grid.dx_mm, grid.dy_mm, grid.x_mm, grid.y_mm, material,
+        (0.005, 0.0), 0.0, None,
+    )
+    assert shear.slip_mm == 0.0  # stuck: the tangential force is below mu * P
+    assert np.hypot(*shear.shear_force_n) < material.friction * result.normal_force_n
+    ux = shear.displacement_mm[0]
+    row0 = int(np.argmin(np.abs(grid.y_mm)))
+    col0 = int(np.argmin(np.abs(grid.x_mm)))
+
+    def along(r: float) -> float:
+        return float(np.interp(r, grid.x_mm, ux[row0]))
+
+    def across(r: float) -> float:
+        return float(np.interp(r, grid.y_mm, ux[:, col0]))
+
+    assert along(4.0) / along(8.0) == pytest.approx(2.0, rel=0.10)  # falls like 1/r
+    assert across(4.0) / across(8.0) == pytest.approx(2.0, rel=0.10)
+    assert along(6.0) / across(6.0) == pytest.approx(2.0, rel=0.10)  # nu = 0.5: twice along the load
+
+
+def test_gross_slip_accumulates_and_stick_does_not() -> None:
+    gap = sphere_gap(MINI, 5.0, 0.3)
+    state = None
+    stuck = simulate_frame(MINI, gap, tangential_mm=(0.01, 0.0), state=state)
+    assert float(stuck.slip_mm) == 0.0
+    assert stuck.shear_force_n[0] > 0.0
+    slid = simulate_frame(MINI, gap, tangential_mm=(3.0, 0.0), state=stuck.state)
+    assert float(slid.slip_mm) > 2.0
+    assert np.hypot(*slid.shear_force_n) <= MINI.material.friction * float(slid.normal_force_n) * 1.01
+    # the reference followed the object: holding still keeps the same strain and the same slip
+    held = simulate_frame(MINI, gap, tangential_mm=(3.0, 0.0), state=slid.state)
+    assert float(held.slip_mm) == pytest.approx(float(slid.slip_mm))
+    # contact lost -> state resets
+    gone = simulate_frame(MINI, np.full_like(gap, 1e3), tangential_mm=(3.0, 0.0), state=held.state)
+    assert not gone.state.in_contact and float(gone.slip_mm) == 0.0
+
+
+def test_shear_moves_markers_along_the_load() -> None:
+    gap = sphere_gap(MINI, 5.0, 0.5)
+    rest = simulate_frame(MINI, gap)
+    dragged = simulate_frame(MINI, gap, tangential_mm=(0.2, 0.0))
+    du = (dragged.markers_px - rest.markers_px)[:, 0]
+    centre = int(np.argmin(np.hypot(*(rest.markers_ref_px - [MINI.cx_px, MINI.cy_px]).T)))
+    assert du[centre] > 1.0
+    assert du[centre] == pytest.approx(du.max())
+
+
+def test_geometric_contact_radius_is_the_overlap() -> None:
+    radius, depth = 10.0, 0.3
+    frame = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="geometric")
+    measured = contact_radius(frame.contact_mask, MINI.mm_per_px_x * MINI.mm_per_px_y)
+    assert measured == pytest.approx(np.sqrt(2.0 * radius * depth - depth**2), rel=0.01)  # the cap's rim
+    assert measured == pytest.approx(np.sqrt(2.0 * radius * depth), rel=0.02)  # its limit for d << R
+    elastic = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="elastic")
+    assert contact_radius(elastic.contact_mask, MINI.mm_per_px_x * MINI.mm_per_px_y) < 0.8 * measured
+
+
+@pytest.mark.parametrize("method", ["geometric", "elastic"])
+def test_mirror_symmetric_inputs_give_mirror_symmetric_outputs(method: str) -> None:
+    gap = np.minimum(sphere_gap(MINI, 4.0, 0.4, (-3.0, 1.0)), sphere_gap(MINI, 4.0, 0.4, (3.0, 1.0)))
+    assert np.array_equal(gap, gap[:, ::-1])
+    frame = simulate_frame(MINI, gap, method=method)  # type: ignore[arg-type]
+    mirrored = simulate_frame(MINI, gap[:, ::-1], method=method)  # type: ignore[arg-type]
+    np.testing.assert_allclose(frame.depth_mm, mirrored.depth_mm[:, ::-1], atol=1e-6)
+    np.testing.assert_allclose(frame.depth_mm, frame.depth_mm[:, ::-1], atol=1e-6)
+    np.testing.assert_allclose(frame.pressure_mpa, frame.pressure_mpa[:, ::-1], atol=1e-6)
+    u = frame.markers_px[:, 0].reshape(MINI.marker_rows, MINI.marker_cols)
+    np.testing.assert_allclose(u, (MINI.image_width_px - 1) - u[:, ::-1], atol=1e-3)
+
+
+def test_cylinder_line_contact_is_uniform_along_its_axis() -> None:
+    frame = simulate_frame(MINI, cylinder_gap(MINI, 4.0, 0.3), method="elastic")
+    centre_row = frame.pressure_mpa[MINI.image_height_px // 2 - 1 : MINI.image_height_px // 2 + 1]
+    profile = centre_row.max(axis=0)[60:-60]
+    assert profile.min() > 0.0
+    assert np.ptp(frame.pressure_mpa[:, MINI.image_width_px // 2]) > 0.0
+
+
+def test_solver_grid_block_mean_keeps_totals() -> None:
+    field = np.random.default_rng(0).random((240, 320))
+    assert downsample_mean(field, 4, "constant").sum() * 16 == pytest.approx(field.sum())

@@ -1,0 +1,100 @@
+"""Optical models: the shaded renderer and the Taxim-format calibrated renderer."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from univtac_data.generators.tactile import (
+    TactileConfig, load_taxim_calibration, render_shaded, simulate_frame, sphere_gap,
+)
+from univtac_data.generators.tactile.optics import background_image
+from univtac_data.schema.sensors import get_sensor
+from univtac_data.storage.errors import DatasetError
+
+MINI = get_sensor("gelsight_mini")
+BINS = 9
+
+
+def write_calibration(folder: Path, h: int = 48, w: int = 64) -> None:
+    """A synthetic Taxim folder: each channel's constant term encodes its bin, f0 is flat BGR (40, 90, 160)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    i_mag, i_dir = np.meshgrid(np.arange(BINS), np.arange(BINS), indexing="ij")
+    tables = {}
+    for k, name in enumerate(("grad_r", "grad_g", "grad_b")):
+        t = np.zeros((BINS, BINS, 6))
+        t[..., 5] = (k + 1) * i_mag + 0.5 * i_dir  # constant term
+        tables[name] = t
+    tables["grad_r"][..., 3] = 0.1  # an x term in the first stored (blue) channel: 0.1 * calibration column
+    np.savez(folder / "polycalib.npz", bins=np.int32(BINS), **tables)
+    f0 = np.zeros((h, w, 3), np.uint8)
+    f0[:] = (40, 90, 160)
+    np.savez(folder / "dataPack.npz", f0=f0)
+    (folder / "params.json").write_text(json.dumps({"sensor": {"pixmm": 0.05, "num_bins": BINS, "h": h, "w": w}}))
+
+
+def test_calibrated_flat_gel_is_background_plus_flat_bin(tmp_path: Path) -> None:
+    write_calibration(tmp_path / "calib")
+    calib = load_taxim_calibration(tmp_path / "calib")
+    assert calib.pixmm == 0.05 and calib.bins == BINS
+    img = calib.render(np.zeros((24, 32)), (0.1, 0.1))
+    mid = (BINS - 1) // 2  # flat pixels: magnitude bin 0, direction bin of angle 0
+    cols = np.arange(32) * (64 / 32)
+    # stored BGR: f0 (40, 90, 160) is RGB (160, 90, 40); grad_b drives red, grad_r blue
+    np.testing.assert_array_equal(img[..., 0], np.full((24, 32), np.rint(160 + 3 * 0 + 0.5 * mid)))
+    np.testing.assert_array_equal(img[..., 1], np.full((24, 32), np.rint(90 + 2 * 0 + 0.5 * mid)))
+    np.testing.assert_array_equal(img[..., 2], np.broadcast_to(np.rint(40 + 0.5 * mid + 0.1 * cols), (24, 32)))
+
+
+def test_calibrated_slopes_pick_their_bins(tmp_path: Path) -> None:
+    write_calibration(tmp_path / "calib")
+    calib = load_taxim_calibration(tmp_path / "calib")
+    # a ramp rising along +column with slope 1 (45 deg): magnitude bin floor((pi/4) / ((pi/2) / 8)) = 4,
+    # direction atan2(0, 1) = 0 -> bin floor(pi / (2 pi / 8)) = 4
+    depth = np.tile(np.arange(32) * 0.1, (24, 1)) + 1.0
+    img = calib.render(depth, (0.1, 0.1))
+    assert img[10, 10, 0] == np.rint(160 + 3 * 4 + 0.5 * 4)
+    assert img[10, 10, 1] == np.rint(90 + 2 * 4 + 0.5 * 4)
+
+
+def test_calibrated_mode_in_the_entry_point(tmp_path: Path) -> None:
+    write_calibration(tmp_path / "calib")
+    config = TactileConfig(optics="calibrated", calibration=load_taxim_calibration(tmp_path / "calib"))
+    frame = simulate_frame(MINI, sphere_gap(MINI, 4.0, 0.5), config=config)
+    assert frame.pure_rgb.shape == (240, 320, 3) and frame.pure_rgb.dtype == np.uint8
+    corner, centre_ring = frame.pure_rgb[5, 5], frame.pure_rgb[120, 160 + 20]
+    assert not np.array_equal(corner, centre_ring)
+
+
+def test_missing_calibration_file_names_it(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="polycalib.npz"):
+        load_taxim_calibration(tmp_path)
+
+
+def test_real_taxim_calibration_when_installed() -> None:
+    pytest.importorskip("taxim")
+    from univtac_data.generators.tactile import taxim_calibration_dir
+
+    calib = load_taxim_calibration(taxim_calibration_dir("gelsight_mini"))
+    assert calib.poly.shape == (3, 125, 125, 6) and calib.f0.shape == (480, 640, 3)
+    img = calib.render(np.zeros((240, 320)), (MINI.mm_per_px_x, MINI.mm_per_px_y))
+    assert 20 < float(img.mean()) < 235
+
+
+def test_shaded_flat_gel_is_the_vignetted_background() -> None:
+    img = render_shaded(np.zeros((240, 320)), MINI)
+    bg = background_image(MINI)
+    np.testing.assert_array_equal(img, np.clip(np.rint(bg), 0, 255).astype(np.uint8))
+    assert img[120, 160].astype(int).sum() > img[0, 0].astype(int).sum()  # vignetting darkens corners
+
+
+def test_shaded_slopes_take_the_light_colours() -> None:
+    depth = np.maximum(-sphere_gap(MINI, 4.0, 0.8), 0.0)
+    img = render_shaded(depth, MINI).astype(int)
+    bg = np.clip(np.rint(background_image(MINI)), 0, 255).astype(int)
+    # the red light sits at azimuth 90 deg (+y, down the image): the slope facing it is the lower rim
+    lower, upper = img[120 + 20, 160] - bg[120 + 20, 160], img[120 - 20, 160] - bg[120 - 20, 160]
+    assert lower[0] > 20 and lower[0] > upper[0]

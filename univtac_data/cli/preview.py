@@ -1,0 +1,101 @@
+"""``univtac-data preview``: a contact sheet PNG of a dataset episode's tactile frames, or of a demo press.
+
+    univtac-data preview PATH --out FILE.png [--episode ID] [--frames K] [--pad left|right]
+    univtac-data preview --sensor gelsight_mini --demo sphere --out FILE.png [--method elastic] [--depth MM]
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from univtac_data.schema.sensors import SENSORS, get_sensor
+from univtac_data.storage import Dataset
+from univtac_data.storage.errors import DatasetError
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "preview", help="write a contact sheet PNG (I_marked, I_pure, depth, marker motion) of a dataset "
+        "episode, or of a demo indenter pressed into a sensor",
+    )
+    parser.add_argument("path", nargs="?", help="dataset directory or fsspec URL (omit with --demo)")
+    parser.add_argument("--out", required=True, help="PNG file to write")
+    parser.add_argument("--episode", help="episode id (default: the first)")
+    parser.add_argument("--frames", type=int, default=4, help="frames shown, evenly spaced (default 4)")
+    parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
+    parser.add_argument("--sensor", help=f"demo mode: sensor profile ({', '.join(SENSORS)})")
+    parser.add_argument("--demo", help="demo mode: indenter (sphere, cylinder, punch, cross, two_spheres)")
+    parser.add_argument("--method", choices=("geometric", "elastic"), default="elastic", help="demo contact model")
+    parser.add_argument("--depth", type=float, help="demo press depth, mm (default: inside the safe range)")
+    return parser
+
+
+def _demo_frames(sensor: str, demo: str, method: str, depth: float | None, n: int) -> tuple[list[Any], str]:
+    from univtac_data.generators.tactile import DEMO_INDENTERS, SheetFrame, demo_gap, simulate_frame
+
+    if sensor not in SENSORS:
+        raise DatasetError(f"--sensor {sensor}: unknown sensor; known sensors: {', '.join(SENSORS)}")
+    if demo not in DEMO_INDENTERS:
+        raise DatasetError(f"--demo {demo}: unknown demo indenter; known: {', '.join(DEMO_INDENTERS)}")
+    profile = get_sensor(sensor)
+    final = depth if depth is not None else 0.5 * (profile.grasp_threshold_mm + profile.safe_indentation_mm)
+    frames, state = [], None
+    n = max(1, n)
+    for k in range(n):
+        d = final * (k + 1) / n
+        shift = 0.1 * final * k  # a growing tangential drag so the markers show shear
+        frame = simulate_frame(
+            profile, demo_gap(profile, demo, d), method=method,  # type: ignore[arg-type]
+            tangential_mm=(shift, 0.0), state=state, noise_seed=k,
+        )
+        state = frame.state
+        frames.append(SheetFrame.from_frame(frame, f"d = {d:.2f} mm, dx = {shift:.2f} mm"))
+    return frames, f"{profile.display_name}: {demo}, {method} contact"
+
+
+def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[list[Any], str]:
+    from univtac_data.generators.tactile import SheetFrame
+
+    dataset = Dataset.open(path)
+    ids = dataset.episode_ids
+    if not ids:
+        raise DatasetError(f"{path}: the dataset has no episodes")
+    episode_id = episode if episode is not None else ids[0]
+    if episode_id not in ids:
+        raise DatasetError(f"{path}: no episode {episode_id!r} (episodes: {', '.join(ids[:5])}{'...' if len(ids) > 5 else ''})")
+    ep = dataset.load_episode(episode_id)
+    if pad not in ep.meta.pads:
+        raise DatasetError(f"{path}: episode {episode_id!r} has no pad {pad!r} (pads: {', '.join(ep.meta.pads)})")
+    key = f"tactile/{pad}/"
+    try:
+        marked, pure = ep.arrays[key + "marked_rgb"], ep.arrays[key + "pure_rgb"]
+        depth_um, ref, markers = ep.arrays[key + "depth_um"], ep.arrays[key + "markers_ref_px"], ep.arrays[key + "markers_px"]
+    except KeyError as missing:
+        raise DatasetError(f"{path}: episode {episode_id!r} lacks {missing.args[0]}") from None
+    total = marked.shape[0]
+    picks = np.unique(np.linspace(0, total - 1, max(1, min(n, total))).round().astype(int))
+    frames = [
+        SheetFrame(marked[t], pure[t], depth_um[t].astype(np.float32) / 1000.0, ref, markers[t], f"frame {t}")
+        for t in picks
+    ]
+    return frames, f"{episode_id} ({ep.meta.sensor}, pad {pad}, {total} frames)"
+
+
+def run(args: argparse.Namespace) -> int:
+    from univtac_data.generators.tactile import contact_sheet
+
+    if args.demo is not None or args.sensor is not None:
+        if args.path is not None:
+            raise DatasetError(f"{args.path}: give either a dataset PATH or --sensor/--demo, not both")
+        frames, title = _demo_frames(args.sensor or "gelsight_mini", args.demo or "sphere", args.method, args.depth,
+                                     args.frames)
+    elif args.path is None:
+        raise DatasetError("preview: give a dataset PATH, or --sensor NAME --demo INDENTER")
+    else:
+        frames, title = _dataset_frames(args.path, args.episode, args.frames, args.pad)
+    out = contact_sheet(frames, args.out, title=title)
+    print(f"wrote {out}")
+    return 0

@@ -26,10 +26,11 @@ def test_readme_main_command_installs_torch_first():
     assert main.index("pip install torch==2.13.0") < main.index("pip install -e .")
 
 
-def test_readme_python_example_runs(tmp_path, monkeypatch):
+def test_readme_python_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     make_dataset(tmp_path / "out/demo", "hdf5", 2, n_frames=12)
-    text = (ROOT / "README.md").read_text()
-    example = re.search(r"```python\n(.*?)\n```", text, flags=re.S).group(1)  # type: ignore[union-attr]
-    exec(compile(example, "README.md", "exec"), {})
+    examples = re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S)
+    assert examples
+    for example in examples:
+        exec(compile(example, "README.md", "exec"), {})
     assert (tmp_path / "out/copy/episodes/ep1.zarr").is_dir()

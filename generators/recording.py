@@ -1,0 +1,65 @@
+"""Turn the frames a ``GripperSim`` recorded into a spec-conforming ``Episode``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from univtac_data.episode import Episode
+from univtac_data.generators.gripper import PADS
+from univtac_data.generators.sim import RecordedFrame
+from univtac_data.schema.models import EpisodeMeta, GeneratorInfo, SafetySummary
+
+
+def frames_to_arrays(frames: list[RecordedFrame], rate_hz: float, object_name: str) -> dict[str, np.ndarray]:
+    """Every array of the format from the recorded frames (T = len(frames)).
+
+    ``robot/action[k]`` is the set-point commanded over the interval from frame k to frame k+1, i.e. the
+    set-point in force when frame k+1 is recorded; the last frame repeats its own set-point.
+    """
+    t = len(frames)
+    arrays: dict[str, np.ndarray] = {
+        "timestamps_ns": np.rint(np.arange(t) * (1e9 / rate_hz)).astype(np.int64),
+        "robot/ee_pose": np.stack([f.ee_pose for f in frames]).astype(np.float64),
+        "robot/gripper_width_m": np.array([f.opening_m for f in frames], np.float32),
+        "robot/finger_pos_m": np.stack([f.finger_pos_m for f in frames]).astype(np.float32),
+        "scene/primitive": np.array([f.primitive for f in frames], np.int16),
+        f"scene/objects/{object_name}/pose": np.stack([f.object_world for f in frames]).astype(np.float64),
+    }
+    setpoints = np.stack([np.concatenate([f.ee_setpoint, [f.opening_setpoint_m]]) for f in frames])
+    arrays["robot/action"] = np.concatenate([setpoints[1:], setpoints[-1:]]).astype(np.float32)
+    for pad in PADS:
+        tac = [f.tactile[pad] for f in frames]
+        prefix = f"tactile/{pad}/"
+        arrays[prefix + "marked_rgb"] = np.stack([x.marked_rgb for x in tac])
+        arrays[prefix + "pure_rgb"] = np.stack([x.pure_rgb for x in tac])
+        arrays[prefix + "depth_um"] = np.stack([x.depth_um for x in tac])
+        arrays[prefix + "contact_mask"] = np.stack([x.contact_mask for x in tac])
+        arrays[prefix + "markers_ref_px"] = tac[0].markers_ref_px.astype(np.float32)
+        arrays[prefix + "markers_px"] = np.stack([x.markers_px for x in tac]).astype(np.float32)
+        arrays[prefix + "object_pose"] = np.stack([f.object_in_pad[pad] for f in frames]).astype(np.float64)
+        arrays[prefix + "normal_force_n"] = np.array([x.normal_force_n for x in tac], np.float32)
+        arrays[prefix + "shear_force_n"] = np.stack([x.shear_force_n for x in tac]).astype(np.float32)
+        arrays[prefix + "slip_mm"] = np.array([x.slip_mm for x in tac], np.float32)
+        arrays[prefix + "pad_pose"] = np.stack([f.pad_world[pad] for f in frames]).astype(np.float64)
+    return arrays
+
+
+def safety_summary(arrays: dict[str, np.ndarray]) -> SafetySummary:
+    return SafetySummary(
+        max_indentation_mm=max(int(arrays[f"tactile/{p}/depth_um"].max()) for p in PADS) / 1000.0,
+        max_slip_mm=max(float(arrays[f"tactile/{p}/slip_mm"].max()) for p in PADS),
+        max_normal_force_n=max(float(arrays[f"tactile/{p}/normal_force_n"].max()) for p in PADS),
+    )
+
+
+def build_episode(frames: list[RecordedFrame], *, episode_id: str, kind: str, name: str, sensor: str, seed: int,
+                  generator: GeneratorInfo, success: bool | None, rate_hz: float, object_name: str,
+                  primitive_names: list[str]) -> Episode:
+    arrays = frames_to_arrays(frames, rate_hz, object_name)
+    meta = EpisodeMeta(
+        episode_id=episode_id, kind=kind, name=name, sensor=sensor, seed=seed,  # type: ignore[arg-type]
+        generator=generator, success=success, safety=safety_summary(arrays), nominal_rate_hz=rate_hz,
+        n_frames=len(frames), objects=[object_name], tactile_object=object_name,
+        primitive_names=primitive_names,
+    )
+    return Episode(meta=meta, arrays=arrays)

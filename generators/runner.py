@@ -1,0 +1,155 @@
+"""Run a corpus: episodes in parallel (a local process pool or Ray), committed as they finish, resumable.
+
+Each worker simulates one episode and writes its file with ``write_episode_file`` (atomic, checksummed);
+the driver alone commits index and manifest. Episodes already in the dataset are skipped, so rerunning the
+same command after a kill finishes the job, and because every episode is a pure function of its spec the
+result is the same dataset an uninterrupted run makes.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from typing import Any
+
+from tqdm import tqdm
+
+from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
+from univtac_data.storage import Dataset, DatasetWriter, Location, WrittenEpisode, write_episode_file
+from univtac_data.storage.errors import DatasetError
+
+
+@dataclass
+class RunSummary:
+    """What a run did."""
+
+    planned: int
+    skipped_existing: int
+    written: int = 0
+    frames: int = 0
+    failed: list[str] = field(default_factory=list)  # one line each: episode id and error
+    elapsed_s: float = 0.0
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+
+def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str) -> WrittenEpisode:
+    """Simulate one episode and write its file (runs in a worker)."""
+    episode = run_indenter_episode(spec)
+    return write_episode_file(Location.parse(url), storage, episode)
+
+
+def _check_same_settings(url: str, specs: list[IndenterEpisodeSpec]) -> None:
+    """Refuse to resume into episodes made with other settings: the dataset would silently mix them."""
+    dataset = Dataset.open(url)
+    by_id = {s.episode_id: s for s in specs}
+    for episode_id in sorted(set(dataset.index) & set(by_id)):
+        with dataset.open_episode(episode_id) as handle:
+            stored = handle.meta.generator.settings
+        wanted = asdict(by_id[episode_id])
+        diff = {k: (stored.get(k), v) for k, v in wanted.items() if stored.get(k) != v}
+        if diff:
+            key, (old, new) = next(iter(diff.items()))
+            raise DatasetError(f"{dataset.loc.url_of(dataset.index[episode_id].path)}: made with {key}={old!r}, "
+                               f"this run asks for {key}={new!r}; rerun with the same options or choose a new --out")
+        return  # one episode tells: every episode of a run shares the settings
+
+
+def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int) \
+        -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
+    if workers <= 1:
+        for spec in specs:
+            try:
+                yield spec, produce_indenter_episode(spec, url, storage)
+            except Exception as error:  # one bad episode must not end the run; it is reported
+                yield spec, error
+        return
+    # spawn: no inherited locks or file handles from the driver (h5py and threads do not survive fork)
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        pending: dict[Future[WrittenEpisode], IndenterEpisodeSpec] = {}
+        queue = list(reversed(specs))
+        try:
+            while queue or pending:
+                while queue and len(pending) < 2 * workers:
+                    spec = queue.pop()
+                    pending[pool.submit(produce_indenter_episode, spec, url, storage)] = spec
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    spec = pending.pop(future)
+                    error = future.exception()
+                    yield spec, error if error is not None else future.result()
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            raise
+
+
+def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, address: str | None) \
+        -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
+    try:
+        import ray
+    except ImportError:
+        raise DatasetError("--executor ray needs Ray: pip install 'univtac-data[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
+        ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR", **kwargs)
+    try:
+        remote = ray.remote(num_cpus=1)(produce_indenter_episode)
+        futures = {remote.remote(spec, url, storage): spec for spec in specs}
+        while futures:
+            done, _ = ray.wait(list(futures), num_returns=1)
+            spec = futures.pop(done[0])
+            try:
+                yield spec, ray.get(done[0])
+            except Exception as error:  # ray wraps the worker's exception; report it per episode
+                yield spec, error
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hdf5", workers: int = 1,
+               executor: str = "local", ray_address: str | None = None, progress: bool = True,
+               on_commit: Callable[[WrittenEpisode], None] | None = None) -> RunSummary:
+    """Make every episode of ``specs`` that the dataset at ``url`` lacks."""
+    sensors = sorted({s.sensor for s in specs})
+    writer = DatasetWriter.open(url, storage=storage, sensors=sensors)
+    _check_same_settings(url, specs)
+    todo = [s for s in specs if not writer.has(s.episode_id)]
+    summary = RunSummary(planned=len(specs), skipped_existing=len(specs) - len(todo))
+    if not todo:
+        return summary
+    start = time.perf_counter()
+    bar = tqdm(total=len(specs), initial=summary.skipped_existing, unit="episode", desc="generate",
+               disable=not progress, file=sys.stderr, dynamic_ncols=True)
+    stream = (_ray(todo, url, storage, workers, ray_address) if executor == "ray"
+              else _local(todo, url, storage, workers))
+    try:
+        for spec, result in stream:
+            if isinstance(result, BaseException):
+                summary.failed.append(f"{spec.episode_id}: {type(result).__name__}: {result}")
+            else:
+                writer.commit([result])
+                summary.written += 1
+                summary.frames += result.row.n_frames
+                if on_commit is not None:
+                    on_commit(result)
+            summary.elapsed_s = time.perf_counter() - start
+            bar.set_postfix(frames_per_s=f"{summary.frames_per_s:.0f}", failed=len(summary.failed))
+            bar.update(1)
+    finally:
+        bar.close()
+        summary.elapsed_s = time.perf_counter() - start
+    return summary
+
+
+def default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))

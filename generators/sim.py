@@ -1,0 +1,223 @@
+"""``GripperSim``: a MuJoCo scene with the tactile gripper, stepped under a controller, recorded at a fixed rate.
+
+The class owns the MuJoCo model/data, the commanded set-points (end-effector pose, gel opening) and the
+per-pad tactile state; primitives (``primitives.py``) drive it through ``tick``. Physics runs at the model's
+timestep; the controller ticks every ``control_period_steps`` physics steps; a frame is recorded every
+``1 / record_rate_hz`` s. Everything is deterministic for a given model and command sequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from univtac_data.generators.geometry import mat_to_quat, relative_pose
+from univtac_data.generators.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to_opening, opening_to_finger_pos
+from univtac_data.generators.tactile import (
+    ContactState,
+    TactileConfig,
+    TactileFrame,
+    gap_field,
+    pad_pose,
+    sensor_grid,
+    simulate_frame,
+)
+from univtac_data.schema.sensors import SensorProfile
+
+GAP_PROBE_MAX_MM = 10.0  # farthest pad-object distance the controllers need to know, mm
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    record_rate_hz: float = 60.0  # UniVTAC saves data at 60 Hz
+    control_period_steps: int = 2  # controller ticks every 2 physics steps (500 Hz at dt = 1 ms)
+    contact_method: str = "geometric"  # tactile contact model: "geometric" or "elastic"
+    # Image pixels per cell of the stick/slip shear solve. 8 px is 0.66 mm on a GelSight Mini, a quarter of
+    # the marker pitch; the solve dominates a frame and costs about 3x more at 4 px.
+    shear_step_px: int = 8
+
+
+@dataclass
+class RecordedFrame:
+    """What ``GripperSim`` captures at one recorded frame (robot, objects, set-points, tactile per pad)."""
+
+    time_s: float
+    ee_pose: np.ndarray
+    opening_m: float
+    finger_pos_m: np.ndarray
+    ee_setpoint: np.ndarray
+    opening_setpoint_m: float
+    primitive: int
+    object_world: np.ndarray
+    tactile: dict[str, TactileFrame]
+    object_in_pad: dict[str, np.ndarray]
+    pad_world: dict[str, np.ndarray]
+    mujoco_penetration_mm: float
+
+
+class GripperSim:
+    """A scene, its gripper set-points, and the frames recorded so far."""
+
+    def __init__(self, model: mujoco.MjModel, profile: SensorProfile, pad_geoms: dict[str, list[str]],
+                 object_body: str, primitive_names: list[str], config: SimConfig | None = None,
+                 on_frame: Callable[[RecordedFrame], None] | None = None) -> None:
+        self.model, self.data = model, mujoco.MjData(model)
+        self.profile = profile
+        self.config = config or SimConfig()
+        self.pad_geoms = pad_geoms
+        self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, object_body)
+        self.primitive_names = primitive_names
+        self.primitive = -1
+        self.frames: list[RecordedFrame] = []
+        self.on_frame = on_frame
+        self._grid = sensor_grid(profile, 1)
+        self._tactile = TactileConfig(shear_step=self.config.shear_step_px)
+        self._states: dict[str, ContactState | None] = {pad: None for pad in PADS}
+        # per pad, while in contact: the object-frame point (m) that sat at the pad centre when the contact
+        # began, and the object's orientation in the pad frame then
+        self._anchors: dict[str, tuple[np.ndarray, np.ndarray] | None] = {pad: None for pad in PADS}
+        self._slides = [model.joint(f"{pad}_slide").qposadr[0] for pad in PADS]
+        self._actuators = [model.actuator(f"{pad}_finger").id for pad in PADS]
+        self._ee_site = model.site("ee").id
+        self._pad_sites = {pad: model.site(f"{pad}_pad").id for pad in PADS}
+        self._gel_geom_ids = {pad: model.geom(f"{pad}_gel").id for pad in PADS}
+        self._gel_geoms = set(self._gel_geom_ids.values())
+        self._object_geom_ids = {pad: [model.geom(g).id for g in geoms] for pad, geoms in pad_geoms.items()}
+        mujoco.mj_forward(model, self.data)
+        self.ee_setpoint = np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
+        self.finger_setpoints_m = self.data.qpos[self._slides].astype(float).copy()
+        self.grip_regulator: Callable[[GripperSim], None] | None = None
+        self._record_origin_s = 0.0
+        self._next_record_s = 0.0
+
+    def start_recording(self) -> None:
+        """Forget recorded frames and record from now on (frame 0 = the next tick)."""
+        self.frames.clear()
+        self._record_origin_s = self._next_record_s = self.time_s
+
+    @property
+    def opening_setpoint_m(self) -> float:
+        """Commanded distance between the gel surfaces, m (from the two finger set-points)."""
+        return float(finger_pos_to_opening(float(np.mean(self.finger_setpoints_m))))
+
+    def set_opening(self, opening_m: float) -> None:
+        """Command both fingers symmetrically to a gel-to-gel distance, m."""
+        self.finger_setpoints_m[:] = opening_to_finger_pos(opening_m)
+
+    # --- state -----------------------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.model.opt.timestep) * self.config.control_period_steps
+
+    @property
+    def opening_m(self) -> float:
+        """Distance between the two gel surfaces now, m."""
+        q = self.data.qpos[self._slides]
+        return float(finger_pos_to_opening(float(np.mean(q))))
+
+    def ee_pose(self) -> np.ndarray:
+        return np.concatenate([self.data.site_xpos[self._ee_site],
+                               mat_to_quat(self.data.site_xmat[self._ee_site].reshape(3, 3))])
+
+    def gap_mm(self) -> dict[str, float]:
+        """Signed distance between each gel pad and the object now, mm: negative is the indentation the
+        grasp law reads, positive the distance still to close (capped at ``GAP_PROBE_MAX_MM``).
+
+        MuJoCo's narrow-phase distance between the rigid pad and each object geom: the same penetration its
+        contacts use, at microseconds a call (a full gap field every control tick would dominate the run).
+        """
+        out = {}
+        for pad in PADS:
+            gel = self._gel_geom_ids[pad]
+            out[pad] = min(mujoco.mj_geomDistance(self.model, self.data, gel, geom, GAP_PROBE_MAX_MM / 1000, None)
+                           for geom in self._object_geom_ids[pad]) * 1000.0
+        return out
+
+    def mujoco_penetration_mm(self) -> float:
+        """Deepest MuJoCo contact penetration involving a gel pad, mm (the stability study reads it)."""
+        worst = 0.0
+        for k in range(self.data.ncon):
+            con = self.data.contact[k]
+            if con.geom1 in self._gel_geoms or con.geom2 in self._gel_geoms:
+                worst = max(worst, -float(con.dist) * 1000)
+        return worst
+
+    # --- stepping --------------------------------------------------------------------------------
+    def tick(self) -> None:
+        """Apply the set-points and advance one control period, recording frames that fall due."""
+        if self.grip_regulator is not None:
+            self.grip_regulator(self)
+        self.data.mocap_pos[0] = self.ee_setpoint[:3]
+        self.data.mocap_quat[0] = self.ee_setpoint[3:]
+        self.finger_setpoints_m = np.clip(self.finger_setpoints_m, 0.0, FINGER_TRAVEL_M)
+        self.data.ctrl[self._actuators] = self.finger_setpoints_m
+        for _ in range(self.config.control_period_steps):
+            if self.time_s + 1e-12 >= self._next_record_s:
+                self._record()
+            mujoco.mj_step(self.model, self.data)
+
+    def _record(self) -> None:
+        model, data = self.model, self.data
+        obj_pos, obj_mat = data.xpos[self.object_body], data.xmat[self.object_body].reshape(3, 3)
+        tactile, in_pad, pad_world = {}, {}, {}
+        for pad in PADS:
+            site = self._pad_sites[pad]
+            pad_pos, pad_mat = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
+            rel = relative_pose(pad_pos, pad_mat, obj_pos, obj_mat)
+            gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid)
+            tangential_mm, twist_rad = self._motion_since_onset(pad, gap, pad_pos, pad_mat, obj_pos, obj_mat)
+            frame = simulate_frame(
+                self.profile, gap, method=self.config.contact_method,  # type: ignore[arg-type]
+                tangential_mm=tangential_mm, twist_rad=twist_rad, state=self._states[pad], config=self._tactile,
+            )
+            self._states[pad] = frame.state
+            tactile[pad], in_pad[pad] = frame, rel
+            pad_world[pad] = np.concatenate([pad_pos, mat_to_quat(pad_mat)])
+        recorded = RecordedFrame(
+            time_s=self.time_s - self._record_origin_s, ee_pose=self.ee_pose(), opening_m=self.opening_m,
+            finger_pos_m=data.qpos[self._slides].astype(np.float32).copy(), ee_setpoint=self.ee_setpoint.copy(),
+            opening_setpoint_m=self.opening_setpoint_m, primitive=self.primitive,
+            object_world=np.concatenate([obj_pos, mat_to_quat(obj_mat)]), tactile=tactile, object_in_pad=in_pad,
+            pad_world=pad_world, mujoco_penetration_mm=self.mujoco_penetration_mm(),
+        )
+        self.frames.append(recorded)
+        if self.on_frame is not None:
+            self.on_frame(recorded)
+        self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
+
+    def _motion_since_onset(self, pad: str, gap: np.ndarray, pad_pos: np.ndarray, pad_mat: np.ndarray,
+                            obj_pos: np.ndarray, obj_mat: np.ndarray) -> tuple[tuple[float, float], float]:
+        """Tangential displacement (pad x, y, mm) and twist about the pad normal (rad) of the object since
+        this contact began.
+
+        The displacement is that of the object's material point that sat at the pad centre at onset: the
+        shear model needs the motion at the gel surface, and the object's origin, far behind the surface,
+        would turn every tilt into a slide. The twist is read from the rotation since onset, which stays
+        near the identity (the object's own axes may be aligned with the pad normal, where an angle read
+        from them is undefined).
+        """
+        if not (gap < 0.0).any():
+            self._anchors[pad] = None
+            return (0.0, 0.0), 0.0
+        if self._anchors[pad] is None:
+            self._anchors[pad] = (obj_mat.T @ (pad_pos - obj_pos), pad_mat.T @ obj_mat)
+        anchor, onset_rel = self._anchors[pad]  # type: ignore[misc]
+        in_pad = pad_mat.T @ (obj_pos + obj_mat @ anchor - pad_pos)
+        turn = (pad_mat.T @ obj_mat) @ onset_rel.T
+        twist = float(np.arctan2(turn[1, 0] - turn[0, 1], turn[0, 0] + turn[1, 1]))
+        return (float(in_pad[0] * 1000), float(in_pad[1] * 1000)), twist
+
+    def set_primitive(self, name: str) -> None:
+        if name not in self.primitive_names:
+            raise ValueError(f"primitive {name!r} is not in {self.primitive_names}")
+        self.primitive = self.primitive_names.index(name)
+
+    def finite(self) -> bool:
+        return bool(np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all())

@@ -1,0 +1,81 @@
+"""``univtac-data generate indenters``: make the encoder-pretraining corpus."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from univtac_data.schema.sensors import SENSORS
+from univtac_data.storage import Dataset
+from univtac_data.storage.errors import DatasetError
+
+DEFAULT_OUT = "out/indenters"
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser("generate", help="generate a dataset (indenters: the encoder corpus)")
+    kinds = parser.add_subparsers(dest="kind", metavar="KIND", required=True)
+    ind = kinds.add_parser(
+        "indenters", help="a gripper pressing, twisting and shifting against the 14 indenters",
+        description="Generate indenter episodes: closed-loop grasps to a random depth, then small rotations and "
+                    "moves that shear the gel. Rerun the same command to resume after an interruption.",
+    )
+    ind.add_argument("--out", default=DEFAULT_OUT, help=f"dataset directory or URL (default {DEFAULT_OUT})")
+    ind.add_argument("--sensor", default="gelsight_mini", choices=[*SENSORS, "all"],
+                     help="sensor model, or all three (default gelsight_mini)")
+    ind.add_argument("--shapes", default="all", help="'all' or a comma-separated list of indenter names")
+    ind.add_argument("--episodes-per-shape", type=int, default=2, help="episodes per shape and sensor (default 2)")
+    ind.add_argument("--frames-per-episode", type=int, default=60, help="recorded frames per episode (default 60)")
+    ind.add_argument("--rate", type=float, default=60.0, help="recording rate, Hz (default 60)")
+    ind.add_argument("--contact", choices=("geometric", "elastic"), default="geometric",
+                     help="tactile contact model (default geometric)")
+    ind.add_argument("--seed", type=int, default=0, help="base seed; each episode derives its own (default 0)")
+    ind.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
+    ind.add_argument("--workers", type=int, default=None, help="parallel workers (default: the CPU count)")
+    ind.add_argument("--executor", choices=("local", "ray"), default="local",
+                     help="a local process pool, or Ray tasks (default local)")
+    ind.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
+    return parser
+
+
+def _shape_list(text: str) -> list[str]:
+    from univtac_data.generators.indenters import INDENTER_NAMES
+
+    if text == "all":
+        return list(INDENTER_NAMES)
+    shapes = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in shapes if s not in INDENTER_NAMES]
+    if unknown or not shapes:
+        raise DatasetError(f"--shapes: unknown indenter {', '.join(unknown) or '(none)'}; "
+                           f"known: {', '.join(INDENTER_NAMES)}")
+    return shapes
+
+
+def run(args: argparse.Namespace) -> int:
+    from univtac_data.generators.indenter_corpus import corpus_specs
+    from univtac_data.generators.runner import default_workers, run_corpus
+
+    for name, value in (("--episodes-per-shape", args.episodes_per_shape), ("--frames-per-episode",
+                                                                              args.frames_per_episode)):
+        if value < 1:
+            raise DatasetError(f"{name} must be at least 1 (got {value})")
+    if args.rate <= 0:
+        raise DatasetError(f"--rate must be positive (got {args.rate})")
+    sensors = list(SENSORS) if args.sensor == "all" else [args.sensor]
+    specs = corpus_specs(sensors, _shape_list(args.shapes), args.episodes_per_shape, base_seed=args.seed,
+                         frames=args.frames_per_episode, contact_method=args.contact, record_rate_hz=args.rate)
+    workers = args.workers if args.workers is not None else default_workers()
+    summary = run_corpus(args.out, specs, storage=args.format, workers=workers, executor=args.executor,
+                         ray_address=args.ray_address, progress=sys.stderr.isatty())
+    dataset = Dataset.open(args.out)
+    frames = sum(r.n_frames for r in dataset.index.values())
+    size = sum(r.bytes for r in dataset.index.values())
+    print(f"{args.out}: {len(dataset)} episodes, {frames} frames, {size / 2**20:.1f} MiB "
+          f"({size / max(frames, 1) / 1024:.0f} KiB per frame)")
+    print(f"this run: {summary.written} written, {summary.skipped_existing} already there, "
+          f"{len(summary.failed)} failed, {summary.frames} frames in {summary.elapsed_s:.1f} s "
+          f"({summary.frames_per_s:.0f} frames/s with {workers} {args.executor} worker(s))")
+    for line in summary.failed:
+        print(f"failed: {line}", file=sys.stderr)
+    return 1 if summary.failed else 0

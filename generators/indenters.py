@@ -168,7 +168,7 @@ def part_mesh(part: Part) -> trimesh.Trimesh:
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
         mesh.apply_scale(part.size)
     elif part.kind == "capsule":
-        mesh = trimesh.creation.capsule(height=2 * part.size[1], radius=part.size[0])
+        mesh = trimesh.creation.capsule(height=2 * part.size[1], radius=part.size[0], count=[32, 32])
     elif part.kind == "cylinder":
         mesh = trimesh.creation.cylinder(radius=part.size[0], height=2 * part.size[1])
     else:

@@ -41,6 +41,7 @@ class HDF5Handle(EpisodeHandle):
         except Exception:
             self._file.close()
             raise
+        self._datasets: dict[str, h5py.Dataset] = {}  # path lookups cost more than a small frame read
 
     def paths(self) -> list[str]:
         found: list[str] = []
@@ -48,11 +49,16 @@ class HDF5Handle(EpisodeHandle):
         return sorted(found)
 
     def _read_raw(self, path: str, index: Any) -> np.ndarray:
-        if path not in self._file:
-            raise KeyError(path)
-        return self._file[path][index]
+        dataset = self._datasets.get(path)
+        if dataset is None:
+            dataset = self._file[path]  # KeyError when missing: read() turns it into CorruptFileError
+            if not isinstance(dataset, h5py.Dataset):
+                raise KeyError(path)
+            self._datasets[path] = dataset
+        return dataset[index]
 
     def close(self) -> None:
+        self._datasets.clear()
         self._file.close()
 
 

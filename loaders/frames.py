@@ -1,0 +1,246 @@
+"""``TactileFrameDataset``: one sample per (frame, pad), with the UniVTAC encoder's pretraining targets.
+
+Targets (paper symbols; shapes for one sample, ``H x W`` the sensor's native image size)::
+
+    key            symbol    shape      dtype    values
+    marked_rgb     I_marked  (3, H, W)  float32  tactile image with markers, RGB / 255, in [0, 1]
+    pure_rgb       I_pure    (3, H, W)  float32  marker-free image, RGB / 255, in [0, 1]
+    depth_mm       D         (1, H, W)  float32  indentation depth, mm (stored um / 1000), >= 0
+    markers        M         (N, 2)     float32  current marker centres (u, v) scaled to [-1, 1]:
+                                                 2 u / (W - 1) - 1, 2 v / (H - 1) - 1 (pixel centres at
+                                                 integers; torch grid_sample's align_corners=True)
+    object_pose    p         (7,)       float32  object pose in the gel-pad-centre frame: x, y, z in mm,
+                                                 quaternion w, x, y, z with w >= 0 (q and -q are one
+                                                 rotation; a regression target needs one of them)
+
+Optional keys (ask with ``fields=``): ``contact_mask`` (1, H, W) bool; ``markers_ref`` (N, 2) float32,
+scaled like ``markers``; ``markers_px`` (N, 2) float32 current centres in pixels; ``normal_force_n`` ()
+float32 N; ``shear_force_n`` (2,) float32 N; ``slip_mm`` () float32 mm.
+Every sample also carries ``sensor``, ``pad``, ``episode_id``, ``name`` (indenter shape or task: the
+probe's label) as strings and ``frame``, ``dataset`` as ints.
+
+Compact samples (``compact=True``): ``marked_rgb`` and ``pure_rgb`` stay (3, H, W) uint8 and depth comes
+as ``depth_um`` (1, H, W) int16 micrometres (exact; the gels are at most 4 mm thick, far below 32.767 mm),
+a quarter of the bytes. Moving float32 images from worker processes costs more than reading them (about
+2.2 MB per 320 x 240 sample through shared memory; see ``benchmarks/loader_throughput.py``), so a fast
+pipeline sends compact samples and calls ``to_float(batch)`` after the DataLoader, in the training
+process or on the GPU; it gives exactly the float targets above.
+
+The scaling choices keep the five MSE terms of similar size without dataset statistics: images in
+[0, 1], depth in mm (a deep press is about 1 mm), markers in [-1, 1] whatever the resolution, and pose
+translations in mm (metres would make the pose loss a thousand times smaller than the rest).
+
+Batching: samples keep their sensor's native resolution and marker count (gelsight_mini 240 x 320 with
+63 markers, gf225 480 x 480 with 81, xense_ws 240 x 320 with 220). ``default_collate`` stacks only
+samples of one sensor, so a dataset that mixes sensors needs either ``sensors=`` (one loader per sensor)
+or ``SensorBatchSampler`` (each batch drawn from one sensor). ``Resize`` makes images a common size but
+cannot change the marker count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from univtac_data.storage import Dataset
+
+from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, require_paths, \
+    select_episodes
+from univtac_data.loaders.sampler import FrameTable
+from univtac_data.loaders.split import Split
+
+ENCODER_TARGETS: tuple[str, ...] = ("marked_rgb", "pure_rgb", "depth_mm", "markers", "object_pose")
+"""The five targets of the UniVTAC encoder: I_marked, I_pure, D, M, p."""
+
+# sample key -> stored array it comes from (under tactile/{pad}/)
+FRAME_FIELDS: dict[str, str] = {
+    "marked_rgb": "marked_rgb", "pure_rgb": "pure_rgb", "depth_mm": "depth_um", "markers": "markers_px",
+    "object_pose": "object_pose", "contact_mask": "contact_mask", "markers_ref": "markers_ref_px",
+    "markers_px": "markers_px", "normal_force_n": "normal_force_n", "shear_force_n": "shear_force_n",
+    "slip_mm": "slip_mm",
+}
+
+Sample = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class TactileFrameConfig:
+    """What a ``TactileFrameDataset`` serves. Every filter is applied before the index table is built."""
+
+    fields: tuple[str, ...] = ENCODER_TARGETS  # sample keys to produce (keys of FRAME_FIELDS)
+    sensors: tuple[str, ...] | None = None     # keep only episodes of these sensor profiles; None: all
+    pads: tuple[str, ...] | None = None        # keep only these pads, e.g. ("left",); None: every pad
+    names: tuple[str, ...] | None = None       # keep only these shape / task names; None: all
+    episodes: tuple[str, ...] | None = None    # explicit episode ids (before the split); None: all
+    split: Split = "all"                       # "train" / "val" by hash of the episode id, or "all"
+    val_fraction: float = 0.1                  # share of episodes in "val"
+    split_seed: int = 0                        # another seed gives another (still episode-level) split
+    max_open_episodes: int = 16                # open handles kept per process (LRU)
+    compact: bool = False                      # uint8 images and int16 um depth; convert with to_float(batch)
+
+    def __post_init__(self) -> None:
+        unknown = [f for f in self.fields if f not in FRAME_FIELDS]
+        if unknown or not self.fields:
+            raise ValueError(f"fields must be a non-empty subset of {sorted(FRAME_FIELDS)} (got {list(self.fields)})")
+
+
+def _tuple(value: Sequence[str] | str | None) -> tuple[str, ...] | None:
+    if value is None:
+        return None
+    return (value,) if isinstance(value, str) else tuple(value)
+
+
+class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
+    """Map-style dataset over (frame, pad) pairs of one or several univtac-data datasets.
+
+    Owns the selected episode list (``episodes``), the index table (``table``, a ``FrameTable``) and an
+    ``EpisodeReader`` that opens files lazily in whichever process reads (safe with DataLoader workers).
+    See the module docstring for the sample's keys, shapes, units and normalisation.
+
+    Arguments: ``path_or_paths`` one dataset or a list; ``transform`` a callable applied to each sample
+    dict (in the worker); the rest as in ``TactileFrameConfig``.
+    """
+
+    def __init__(self, path_or_paths: PathLike | Sequence[PathLike], *, fields: Sequence[str] = ENCODER_TARGETS,
+                 sensors: Sequence[str] | str | None = None, pads: Sequence[str] | str | None = None,
+                 transform: Callable[[Sample], Sample] | None = None, episodes: Sequence[str] | None = None,
+                 names: Sequence[str] | str | None = None, split: Split = "all", val_fraction: float = 0.1,
+                 split_seed: int = 0, max_open_episodes: int = 16, compact: bool = False) -> None:
+        config = TactileFrameConfig(fields=tuple(fields), sensors=_tuple(sensors), pads=_tuple(pads),
+                                    names=_tuple(names), episodes=_tuple(episodes), split=split,
+                                    val_fraction=val_fraction, split_seed=split_seed,
+                                    max_open_episodes=max_open_episodes, compact=compact)
+        self._setup(as_path_list(path_or_paths), config, transform)
+
+    @classmethod
+    def from_config(cls, path_or_paths: PathLike | Sequence[PathLike], config: TactileFrameConfig,
+                    transform: Callable[[Sample], Sample] | None = None) -> TactileFrameDataset:
+        self = cls.__new__(cls)
+        self._setup(as_path_list(path_or_paths), config, transform)
+        return self
+
+    def _setup(self, paths: list[str], config: TactileFrameConfig, transform: Callable[[Sample], Sample] | None) \
+            -> None:
+        self.config = config
+        self.transform = transform
+        self.datasets = [Dataset.open(p) for p in paths]
+        self.episodes: list[EpisodeRef] = select_episodes(
+            self.datasets, episodes=config.episodes, split=config.split, val_fraction=config.val_fraction,
+            split_seed=config.split_seed, sensors=config.sensors, names=config.names)
+        pads = [tuple(p for p in ref.pads if config.pads is None or p in config.pads) for ref in self.episodes]
+        if not any(pads):
+            raise ValueError(f"no episode has any of the pads {list(config.pads or [])}; "
+                             f"pads present: {sorted({p for ref in self.episodes for p in ref.pads})}")
+        for ref, ep_pads in zip(self.episodes, pads):
+            require_paths([ref], [f"tactile/{pad}/{FRAME_FIELDS[f]}" for pad in ep_pads for f in config.fields],
+                          self.datasets)
+        self.table = FrameTable([ref.n_frames for ref in self.episodes], pads)
+        self.reader = EpisodeReader(self.datasets, max_open=config.max_open_episodes)
+        self._sizes = {ref.sensor: self.datasets[ref.dataset].sensor(ref.sensor) for ref in self.episodes}
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    @property
+    def names(self) -> list[str]:
+        """Distinct shape / task names of the selected episodes, sorted (class labels for a probe)."""
+        return sorted({ref.name for ref in self.episodes})
+
+    @property
+    def sensors(self) -> list[str]:
+        """Distinct sensor profiles of the selected episodes, sorted."""
+        return sorted(self._sizes)
+
+    def sensor_of(self, index: int) -> str:
+        """Sensor profile of sample ``index`` (no I/O; used by ``SensorBatchSampler``)."""
+        return self.episodes[int(self.table.episode[index])].sensor
+
+    def read_raw(self, index: int) -> tuple[EpisodeRef, int, str, dict[str, np.ndarray]]:
+        """``(episode, frame, pad, arrays)``: the stored arrays of sample ``index`` before conversion."""
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} samples")
+        episode, frame, pad = self.table.row(index % len(self))
+        ref = self.episodes[episode]
+        arrays = {}
+        for key in self.config.fields:
+            stored = FRAME_FIELDS[key]
+            path = f"tactile/{pad}/{stored}"
+            arrays[key] = self.reader.read(ref, path) if stored == "markers_ref_px" else self.reader.read(ref, path, frame)
+        return ref, frame, pad, arrays
+
+    def __getitem__(self, index: int) -> Sample:
+        ref, frame, pad, arrays = self.read_raw(index)
+        profile = self._sizes[ref.sensor]
+        convert = convert_compact if self.config.compact else convert_target
+        sample: Sample = {}
+        for key, value in arrays.items():
+            name, tensor = convert(key, value, profile.image_width_px, profile.image_height_px)
+            sample[name] = tensor
+        sample.update(sensor=ref.sensor, pad=pad, episode_id=ref.episode_id, name=ref.name, frame=frame,
+                      dataset=ref.dataset)
+        return self.transform(sample) if self.transform is not None else sample
+
+
+def image_chw(rgb: np.ndarray) -> torch.Tensor:
+    """(H, W, 3) uint8 -> (3, H, W) float32 in [0, 1], contiguous."""
+    hwc = torch.from_numpy(np.ascontiguousarray(rgb))
+    out = torch.empty((3, rgb.shape[0], rgb.shape[1]), dtype=torch.float32)
+    out.copy_(hwc.permute(2, 0, 1))
+    return out.mul_(1.0 / 255.0)
+
+
+def scale_markers(markers_px: np.ndarray, width: int, height: int) -> torch.Tensor:
+    """(N, 2) pixel centres (u, v) -> (N, 2) float32 in [-1, 1] (``2 u / (W - 1) - 1``)."""
+    scale = np.array([2.0 / (width - 1), 2.0 / (height - 1)], np.float32)
+    return torch.from_numpy(markers_px.astype(np.float32) * scale - 1.0)
+
+
+def convert_target(key: str, value: np.ndarray, width: int, height: int) -> tuple[str, torch.Tensor]:
+    """A stored array of one frame -> ``(sample key, tensor)`` (see the module docstring)."""
+    if key in ("marked_rgb", "pure_rgb"):
+        return key, image_chw(value)
+    if key == "depth_mm":
+        return key, torch.from_numpy(value.astype(np.float32) * np.float32(1e-3))[None]
+    if key in ("markers", "markers_ref"):
+        return key, scale_markers(value, width, height)
+    if key == "object_pose":
+        pose = value.astype(np.float32)
+        pose[:3] *= 1000.0
+        if pose[3] < 0:
+            pose[3:] = -pose[3:]
+        return key, torch.from_numpy(pose)
+    if key == "contact_mask":
+        return key, torch.from_numpy(np.ascontiguousarray(value, dtype=bool))[None]
+    return key, torch.from_numpy(np.asarray(value, np.float32).copy())
+
+
+DEPTH_UM_MAX = 32767  # int16 range; the gels are at most 4 mm thick
+
+
+def convert_compact(key: str, value: np.ndarray, width: int, height: int) -> tuple[str, torch.Tensor]:
+    """Like ``convert_target``, but images stay (3, H, W) uint8 and depth is ``depth_um`` (1, H, W) int16."""
+    if key in ("marked_rgb", "pure_rgb"):
+        return key, torch.from_numpy(np.ascontiguousarray(value.transpose(2, 0, 1)))
+    if key == "depth_mm":
+        if value.size and int(value.max()) > DEPTH_UM_MAX:
+            raise ValueError(f"depth {int(value.max())} um exceeds the compact int16 range ({DEPTH_UM_MAX} um); "
+                             "use compact=False")
+        return "depth_um", torch.from_numpy(value.astype(np.int16))[None]
+    return convert_target(key, value, width, height)
+
+
+def to_float(batch: Sample) -> Sample:
+    """Compact samples or batches -> the float targets: uint8 ``marked_rgb``/``pure_rgb`` (..., 3, H, W) to
+    float32 / 255; int16 ``depth_um`` (..., 1, H, W) to float32 ``depth_mm``. Other keys pass through.
+    Works on any device (call it after moving the batch to the GPU)."""
+    out = dict(batch)
+    for key in ("marked_rgb", "pure_rgb"):
+        if key in out and out[key].dtype == torch.uint8:
+            out[key] = out[key].to(torch.float32).mul_(1.0 / 255.0)
+    if "depth_um" in out:
+        out["depth_mm"] = out.pop("depth_um").to(torch.float32).mul_(1e-3)
+    return out

@@ -1,0 +1,144 @@
+"""The indenter generator: geometry, the closed-loop grasp, determinism, conformance, resume and Ray."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+from univtac_data import Dataset, check_episode, content_hash, get_sensor
+from univtac_data.generators.gripper import MIN_OPENING_M, PADS
+from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, corpus_specs, run_indenter_episode
+from univtac_data.generators.indenter_scene import PAD_SIDE, indenter_geom_names, indenter_scene_xml
+from univtac_data.generators.indenters import INDENTER_NAMES, INDENTERS, TIP_HEIGHT_M, indenter_mesh
+from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, squeeze_open_loop
+from univtac_data.generators.runner import run_corpus
+from univtac_data.generators.sim import GripperSim
+
+
+def cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "univtac_data.cli.main", *args], capture_output=True, text=True,
+                          timeout=600, **kwargs)  # type: ignore[call-overload]
+
+
+def test_fourteen_indenters_span_convex_and_non_convex():
+    assert len(INDENTER_NAMES) == 14 == len(set(INDENTER_NAMES))
+    assert sum(i.convex for i in INDENTERS.values()) == 7
+    for indenter in INDENTERS.values():
+        lo, hi = indenter_mesh(indenter).bounds
+        assert hi[2] == pytest.approx(TIP_HEIGHT_M, abs=2e-4), indenter.name
+        assert max(hi[0] - lo[0], hi[1] - lo[1]) <= 0.0225, indenter.name  # inside the smallest imaged area
+
+
+def make_sim(shape: str, sensor: str = "gelsight_mini") -> GripperSim:
+    profile, indenter = get_sensor(sensor), INDENTERS[shape]
+    model = mujoco.MjModel.from_xml_string(indenter_scene_xml(profile, indenter, gripper_pos=(0.0005, 0.001, 0.081)))
+    sim = GripperSim(model, profile, {p: indenter_geom_names(indenter, PAD_SIDE[p]) for p in PADS}, "indenter",
+                     PRIMITIVE_NAMES)
+    sim.set_opening(0.024)
+    for _ in range(50):
+        sim.tick()
+    sim.start_recording()
+    return sim
+
+
+@pytest.mark.parametrize("shape", ["sphere", "cross", "wave"])
+def test_closed_loop_grasp_reaches_the_threshold_and_holds_it(shape):
+    sim = make_sim(shape)
+    threshold = 0.4
+    outcome = grasp(sim, GraspParams(threshold_mm=threshold))
+    assert outcome.reached
+    hold(sim, 0.3)
+    for pad, gap in sim.gap_mm().items():
+        assert -gap == pytest.approx(threshold, abs=0.02), pad
+    depth = max(int(f.tactile[p].depth_um.max()) for f in sim.frames for p in PADS) / 1000
+    assert depth <= threshold + 0.1  # the approach overshoots by less than 0.1 mm
+    assert depth < get_sensor("gelsight_mini").safe_indentation_mm
+
+
+def test_open_loop_squeeze_drives_the_gel_past_its_limit():
+    sim = make_sim("sphere")
+    squeeze_open_loop(sim, MIN_OPENING_M, 0.3)
+    assert max(-g for g in sim.gap_mm().values()) > get_sensor("gelsight_mini").safe_indentation_mm
+
+
+def test_same_spec_same_episode_and_conforming():
+    spec = IndenterEpisodeSpec("xense_ws", "star", 3, frames=12)
+    a, b = run_indenter_episode(spec), run_indenter_episode(spec)
+    assert content_hash(a) == content_hash(b)
+    check_episode(a, get_sensor("xense_ws"))
+    other = run_indenter_episode(IndenterEpisodeSpec("xense_ws", "star", 4, frames=12))
+    assert content_hash(other) != content_hash(a)
+    meta = a.meta
+    assert meta.kind == "indenter" and meta.name == "star" and meta.n_frames == 12
+    assert meta.safety.max_indentation_mm < get_sensor("xense_ws").safe_indentation_mm
+    assert np.array_equal(a["timestamps_ns"], np.rint(np.arange(12) * 1e9 / 60).astype(np.int64))  # no drift
+    assert a["tactile/left/contact_mask"][-1].any() and a["tactile/right/contact_mask"][-1].any()
+    assert set(np.unique(a["scene/primitive"])) <= set(range(len(PRIMITIVE_NAMES)))
+
+
+def test_episode_specs_have_stable_ids_and_seeds():
+    specs = corpus_specs(["gf225"], ["sphere", "torus"], 2, base_seed=7)
+    assert [s.episode_id for s in specs] == ["gf225-sphere-0000", "gf225-sphere-0001", "gf225-torus-0000",
+                                             "gf225-torus-0001"]
+    assert specs[0].seed == IndenterEpisodeSpec("gf225", "sphere", 0, base_seed=7).seed
+    assert len({s.seed for s in specs}) == 4
+
+
+ARGS = ["generate", "indenters", "--shapes", "sphere,cross,dots", "--episodes-per-shape", "2",
+        "--frames-per-episode", "10"]
+
+
+def test_generate_is_resumable_after_a_kill_and_ends_identical(tmp_path):
+    reference = cli(*ARGS, "--out", str(tmp_path / "ref"), "--workers", "1")
+    assert reference.returncode == 0, reference.stderr
+    assert "6 episodes, 60 frames" in reference.stdout
+
+    with open(tmp_path / "log", "w") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "univtac_data.cli.main", *ARGS, "--out", str(tmp_path / "cut"),
+                                 "--workers", "1"], stdout=log, stderr=log)
+    index = tmp_path / "cut/meta/episodes.parquet"
+    deadline = time.monotonic() + 300
+    while proc.poll() is None and time.monotonic() < deadline:
+        if index.exists() and len(Dataset.open(tmp_path / "cut")) >= 2:
+            os.kill(proc.pid, signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, (tmp_path / "log").read_text()
+    assert 2 <= len(Dataset.open(tmp_path / "cut")) < 6
+
+    resumed = cli(*ARGS, "--out", str(tmp_path / "cut"), "--workers", "2")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "already there" in resumed.stdout
+    ref, cut = Dataset.open(tmp_path / "ref"), Dataset.open(tmp_path / "cut")
+    assert {k: v.sha256 for k, v in ref.index.items()} == {k: v.sha256 for k, v in cut.index.items()}
+    assert (tmp_path / "ref/meta/episodes.parquet").read_bytes() == index.read_bytes()
+    assert cut.verify_checksums() == []
+
+
+def test_ray_executor_makes_the_same_episodes(tmp_path):
+    pytest.importorskip("ray")
+    specs = corpus_specs(["gelsight_mini"], ["hexagon"], 2, frames=6)
+    local = run_corpus(str(tmp_path / "local"), specs, workers=1, progress=False)
+    on_ray = run_corpus(str(tmp_path / "ray"), specs, workers=2, executor="ray", progress=False)
+    assert local.written == on_ray.written == 2 and not on_ray.failed
+    a, b = Dataset.open(tmp_path / "local"), Dataset.open(tmp_path / "ray")
+    assert {k: v.sha256 for k, v in a.index.items()} == {k: v.sha256 for k, v in b.index.items()}
+
+
+def test_bad_options_and_mismatched_resume_are_refused(tmp_path):
+    bad = cli("generate", "indenters", "--out", str(tmp_path / "x"), "--shapes", "sphere,banana")
+    assert bad.returncode == 2 and "unknown indenter banana" in bad.stderr and "Traceback" not in bad.stderr
+    first = cli("generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "cone", "--episodes-per-shape",
+                "1", "--frames-per-episode", "5", "--workers", "1")
+    assert first.returncode == 0, first.stderr
+    again = cli("generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "cone", "--episodes-per-shape",
+                "1", "--frames-per-episode", "7", "--workers", "1")
+    assert again.returncode == 2 and "frames=5" in again.stderr and "frames=7" in again.stderr

@@ -26,7 +26,6 @@ import argparse
 import cProfile
 import json
 import os
-import platform
 import pstats
 import sys
 import tempfile
@@ -48,6 +47,7 @@ from factories import make_dataset  # noqa: E402
 from univtac_data.loaders import ENCODER_TARGETS, TactileFrameDataset, to_float  # noqa: E402
 from univtac_data.loaders.frames import FRAME_FIELDS, convert_target  # noqa: E402
 from univtac_data.storage import Dataset  # noqa: E402
+from common import machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 
 class NaiveEpisodic(torch.utils.data.Dataset[dict[str, Any]]):
@@ -172,19 +172,6 @@ def profile_naive(dataset: NaiveEpisodic, n: int) -> dict[str, Any]:
     return {"items": n, "per_item_ms": 1e3 * wall / n, "open_close_ms_per_item": 1e3 * opens / n}
 
 
-def machine() -> dict[str, Any]:
-    model = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu_model": model, "cores": os.cpu_count(), "torch": torch.__version__, "numpy": np.__version__,
-            "h5py": h5py.__version__, "python": platform.python_version(), "platform": platform.platform()}
-
-
 def plot(results: dict[str, Any], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -269,7 +256,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     best = max(runs["ours_float_hdf5"]["samples_per_s"], runs["ours_compact_hdf5"]["samples_per_s"])
     same_output = runs["ours_float_hdf5"]["samples_per_s"] / base
     results = {
-        "machine": machine(),
+        "machine": machine(packages=("numpy", "torch", "h5py")),
         "config": {"episodes": args.episodes, "frames": args.frames, "pad_samples": n, "sensor": "gelsight_mini",
                    "image": "320x240", "targets": list(ENCODER_TARGETS), "workers": w, "batch_size": b,
                    "timed_epochs": e},

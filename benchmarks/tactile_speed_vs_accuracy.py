@@ -14,7 +14,6 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -24,28 +23,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
-import scipy  # noqa: E402
 
 from univtac_data.generators.tactile import (  # noqa: E402
     ContactConfig, TactileConfig, gap_field, pad_pose, sensor_grid, simulate_frame, sphere_gap,
 )
 from univtac_data.schema.sensors import SENSORS, get_sensor  # noqa: E402
+from common import machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [(5.0, 0.4), (8.0, 0.25), (3.0, 0.5)]  # sphere radius, depth (mm)
-
-
-def machine() -> dict[str, object]:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "threads_used": 1, "python": platform.python_version(),
-            "numpy": np.__version__, "scipy": scipy.__version__, "mujoco": mujoco.__version__}
 
 
 def timed(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
@@ -195,7 +181,7 @@ def main() -> None:
     print("elastic GelSight Mini stages (ms):", {k: round(v, 2) for k, v in stages.items()})
     gaps = gap_backends(repeats)
     print("gap field backends:", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gaps.items()})
-    result = {"machine": machine(), "hertz_cases_radius_depth_mm": CASES, "rows": rows,
+    result = {"machine": machine(threads_used=1), "hertz_cases_radius_depth_mm": CASES, "rows": rows,
               "elastic_mini_stage_ms": stages, "gap_field": gaps}
     out = ROOT / "benchmarks" / "results" / "tactile_speed_vs_accuracy.json"
     out.parent.mkdir(parents=True, exist_ok=True)

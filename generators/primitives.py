@@ -35,6 +35,9 @@ class GraspParams:
     # Fraction of the depth error corrected per control tick. UniVTAC steps a kinematic joint by the whole
     # error; our finger is a servo that takes a few ticks to follow, and a whole-error step makes it hunt.
     gain_per_tick: float = 0.25
+    # How far a finger's set-point may run ahead of the finger, m. A finger slowed by its force limit or
+    # by contact would otherwise let the set-point race past the object and squeeze open-loop when it lands.
+    max_lead_m: float = 0.0002
     settle_s: float = 0.05  # reached for this long ends the grasp
     timeout_s: float = 3.0
 
@@ -61,8 +64,10 @@ def grip_regulator(params: GraspParams, fast_allowed: bool = False):  # type: ig
 
     def regulate(sim: GripperSim) -> None:
         gaps = sim.gap_mm()
+        actual = sim.finger_positions_m()
         for k, pad in enumerate(PADS):
-            sim.finger_setpoints_m[k] += _finger_step(params, gaps[pad], sim.dt_s, fast_allowed)
+            wanted = sim.finger_setpoints_m[k] + _finger_step(params, gaps[pad], sim.dt_s, fast_allowed)
+            sim.finger_setpoints_m[k] = min(max(wanted, actual[k] - params.max_lead_m), actual[k] + params.max_lead_m)
 
     return regulate
 

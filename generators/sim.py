@@ -32,7 +32,7 @@ GAP_PROBE_MAX_MM = 10.0  # farthest pad-object distance the controllers need to 
 
 @dataclass(frozen=True)
 class SimConfig:
-    record_rate_hz: float = 60.0  # UniVTAC saves data at 60 Hz
+    record_rate_hz: float | None = 60.0  # UniVTAC saves data at 60 Hz; None records nothing (physics only)
     control_period_steps: int = 2  # controller ticks every 2 physics steps (500 Hz at dt = 1 ms)
     contact_method: str = "geometric"  # tactile contact model: "geometric" or "elastic"
     # Image pixels per cell of the stick/slip shear solve. 8 px is 0.66 mm on a GelSight Mini, a quarter of
@@ -122,6 +122,10 @@ class GripperSim:
         q = self.data.qpos[self._slides]
         return float(finger_pos_to_opening(float(np.mean(q))))
 
+    def finger_positions_m(self) -> np.ndarray:
+        """(2,) slide positions of the left and right finger now, m (0 = fully open)."""
+        return self.data.qpos[self._slides].astype(float)
+
     def ee_pose(self) -> np.ndarray:
         return np.concatenate([self.data.site_xpos[self._ee_site],
                                mat_to_quat(self.data.site_xmat[self._ee_site].reshape(3, 3))])
@@ -159,7 +163,7 @@ class GripperSim:
         self.finger_setpoints_m = np.clip(self.finger_setpoints_m, 0.0, FINGER_TRAVEL_M)
         self.data.ctrl[self._actuators] = self.finger_setpoints_m
         for _ in range(self.config.control_period_steps):
-            if self.time_s + 1e-12 >= self._next_record_s:
+            if self.config.record_rate_hz is not None and self.time_s + 1e-12 >= self._next_record_s:
                 self._record()
             mujoco.mj_step(self.model, self.data)
 
@@ -190,6 +194,7 @@ class GripperSim:
         self.frames.append(recorded)
         if self.on_frame is not None:
             self.on_frame(recorded)
+        assert self.config.record_rate_hz is not None
         self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
 
     def _motion_since_onset(self, pad: str, gap: np.ndarray, pad_pos: np.ndarray, pad_mat: np.ndarray,

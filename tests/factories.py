@@ -52,7 +52,8 @@ def make_episode(sensor: str = "gelsight_mini", n_frames: int = 4, episode_id: s
         pose[:, 3] = 1.0
         arrays[f"tactile/{pad}/object_pose"] = pose
         arrays[f"tactile/{pad}/normal_force_n"] = (depth.reshape(n_frames, -1).sum(1) * 1e-6).astype(np.float32)
-        arrays[f"tactile/{pad}/shear_force_n"] = rng.normal(0, 0.01, (n_frames, 2)).astype(np.float32)
+        touching = (depth.reshape(n_frames, -1) > 0).any(axis=1)[:, None]  # no shear without contact
+        arrays[f"tactile/{pad}/shear_force_n"] = (rng.normal(0, 0.01, (n_frames, 2)) * touching).astype(np.float32)
         arrays[f"tactile/{pad}/slip_mm"] = np.zeros(n_frames, np.float32)
     ee = np.zeros((n_frames, 7))
     ee[:, 2] = 0.1 + 0.001 * np.arange(n_frames)

@@ -13,7 +13,7 @@ import sys
 from univtac_data.storage.errors import DatasetError
 from univtac_data.version import FORMAT_VERSION, __version__
 
-SUBCOMMANDS = ("generate", "info", "convert", "reindex", "preview")
+SUBCOMMANDS = ("generate", "validate", "info", "convert", "reindex", "preview")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -44,6 +44,8 @@ class GeneratorInfo(_Model):
 class SafetySummary(_Model):
     """Worst values over the episode, both pads; the validators recompute and compare them."""
 
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
     max_indentation_mm: float = Field(ge=0, description="max of depth over frames, pads and pixels, mm")
     max_slip_mm: float = Field(ge=0, description="max of slip_mm over frames and pads, mm")
     max_normal_force_n: float = Field(ge=0, description="max of normal_force_n over frames and pads, N")
@@ -52,6 +54,9 @@ class SafetySummary(_Model):
 class EpisodeMeta(_Model):
     """Everything about one episode that is not a per-frame array. Stored as JSON in the episode's
     root attribute ``univtac_meta``."""
+
+    # JSON has no NaN or infinity: refuse them here rather than write metadata no reader can parse
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     format_version: str = Field(default=FORMAT_VERSION, description="format version the episode was written in")
     episode_id: str = Field(pattern=NAME_PATTERN, description="unique within the dataset; also the file name")

@@ -67,6 +67,21 @@ class EpisodeHandle(ABC):
     def _read_raw(self, path: str, index: Any) -> np.ndarray: ...
 
     @abstractmethod
+    def _layout_raw(self, path: str) -> tuple[tuple[int, ...], np.dtype]: ...
+
+    def layout(self, path: str) -> tuple[tuple[int, ...], np.dtype]:
+        """``(shape, dtype)`` of ``path`` as stored, without reading its data (a bool field is stored as
+        uint8). Raises ``KeyError`` when absent, ``CorruptFileError`` when its metadata cannot be read."""
+        try:
+            shape, dtype = self._layout_raw(path)
+        except KeyError:
+            raise
+        except Exception as error:  # damaged object headers surface as many exception types
+            raise CorruptFileError(f"{self.where}: cannot read the layout of {path} "
+                                   f"({type(error).__name__}: {error})") from None
+        return tuple(int(s) for s in shape), np.dtype(dtype)
+
+    @abstractmethod
     def close(self) -> None: ...
 
     def read(self, path: str, index: Any = ()) -> np.ndarray:

@@ -45,17 +45,27 @@ class HDF5Handle(EpisodeHandle):
 
     def paths(self) -> list[str]:
         found: list[str] = []
-        self._file.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+        try:
+            self._file.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+        except (RuntimeError, OSError, KeyError) as error:  # a damaged object header stops the walk
+            raise CorruptFileError(f"{self.where}: cannot list arrays ({type(error).__name__}: {error})") from None
         return sorted(found)
 
+    def _layout_raw(self, path: str) -> tuple[tuple[int, ...], np.dtype]:
+        dataset = self._dataset(path)
+        return dataset.shape, dataset.dtype
+
     def _read_raw(self, path: str, index: Any) -> np.ndarray:
+        return self._dataset(path)[index]
+
+    def _dataset(self, path: str) -> h5py.Dataset:
         dataset = self._datasets.get(path)
         if dataset is None:
             dataset = self._file[path]  # KeyError when missing: read() turns it into CorruptFileError
             if not isinstance(dataset, h5py.Dataset):
                 raise KeyError(path)
             self._datasets[path] = dataset
-        return dataset[index]
+        return dataset
 
     def close(self) -> None:
         self._datasets.clear()

@@ -45,15 +45,24 @@ class ZarrHandle(EpisodeHandle):
         except Exception as error:
             raise CorruptFileError(f"{self.where}: cannot list arrays ({type(error).__name__}: {error})") from None
 
-    def _read_raw(self, path: str, index: Any) -> np.ndarray:
+    def _array(self, path: str) -> Any:
         array = self._arrays.get(path)
         if array is None:
             try:
                 array = self._group[path]
             except (KeyError, FileNotFoundError):
                 raise KeyError(path) from None
+            if not isinstance(array, zarr.Array):
+                raise KeyError(path)
             self._arrays[path] = array
-        return np.asarray(array[index])
+        return array
+
+    def _layout_raw(self, path: str) -> tuple[tuple[int, ...], np.dtype]:
+        array = self._array(path)
+        return array.shape, np.dtype(array.dtype)
+
+    def _read_raw(self, path: str, index: Any) -> np.ndarray:
+        return np.asarray(self._array(path)[index])
 
     def close(self) -> None:
         self._arrays.clear()

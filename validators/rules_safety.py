@@ -1,0 +1,103 @@
+"""Safety rules: the gel stays within its safe indentation, a held object does not slip, grasp forces stay
+in bounds, and the metadata's safety summary tells the truth.
+
+Safety comparisons treat a non-finite value as a violation (an unknown force is not a safe force).
+Frames that could not be read are left out (``schema.readable`` reports them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from univtac_data.validators.context import EpisodeContext
+from univtac_data.validators.registry import Skip, collect, frame_finding, rule
+from univtac_data.validators.report import Finding
+
+
+@rule("safety.max_indentation", "safety", threshold="profile.safe_indentation_mm")
+def max_indentation(ctx: EpisodeContext) -> list[Finding]:
+    """The deepest indentation of each frame stays within the sensor's safe_indentation_mm."""
+    limit_mm = ctx.require_profile().safe_indentation_mm
+    out = []
+    for pad in ctx.meta.pads:
+        depth_mm = ctx.summary(f"{pad}/depth_max_um") / 1000.0
+        out.append(frame_finding(f"tactile/{pad}/depth_um", depth_mm > limit_mm, depth_mm,
+                                 f"deeper than the safe {limit_mm} mm", ctx.config.max_listed_frames, unit="mm"))
+    return collect(out)
+
+
+def held_frames(ctx: EpisodeContext) -> np.ndarray:
+    """(T,) bool: the object is held, i.e. every pad has contact pixels, or every pad's normal force is at
+    least held_normal_force_n."""
+    by_contact = np.ones(ctx.n_frames, bool)
+    by_force = np.ones(ctx.n_frames, bool)
+    have_contact = have_force = True
+    for pad in ctx.meta.pads:
+        try:
+            by_contact &= np.nan_to_num(ctx.summary(f"{pad}/contact_px")) > 0
+        except Skip:
+            have_contact = False
+        path = f"tactile/{pad}/normal_force_n"
+        if path in ctx.arrays:
+            by_force &= np.nan_to_num(ctx.arrays[path].astype(np.float64)) >= ctx.config.held_normal_force_n
+        else:
+            have_force = False
+    if not have_contact and not have_force:
+        raise Skip("neither contact masks nor normal forces are usable to tell when the object is held")
+    return (by_contact & have_contact) | (by_force & have_force)
+
+
+@rule("safety.slip_while_held", "safety", threshold="max_slip_held_mm")
+def slip_while_held(ctx: EpisodeContext) -> list[Finding]:
+    """While the object is held (contact on every pad, or every pad's normal force >= held_normal_force_n),
+    each pad's slip_mm stays at or below max_slip_held_mm."""
+    held = held_frames(ctx)
+    limit = ctx.config.max_slip_held_mm
+    out = []
+    for pad in ctx.meta.pads:
+        slip = ctx.array(f"tactile/{pad}/slip_mm").astype(np.float64)
+        out.append(frame_finding(f"tactile/{pad}/slip_mm", held & ~(slip <= limit), slip,
+                                 f"slip more than {limit} mm while the object is held", ctx.config.max_listed_frames,
+                                 unit="mm"))
+    return collect(out)
+
+
+@rule("safety.grasp_force", "safety", threshold="max_normal_force_n")
+def grasp_force(ctx: EpisodeContext) -> list[Finding]:
+    """Each pad's normal_force_n lies in [0, max_normal_force_n]."""
+    limit = ctx.config.max_normal_force_n
+    out = []
+    for pad in ctx.meta.pads:
+        force = ctx.array(f"tactile/{pad}/normal_force_n").astype(np.float64)
+        out.append(frame_finding(f"tactile/{pad}/normal_force_n", ~((force >= 0) & (force <= limit)), force,
+                                 f"outside [0, {limit}] N", ctx.config.max_listed_frames, unit="N"))
+    return collect(out)
+
+
+def _episode_max(values: list[np.ndarray]) -> tuple[float, bool]:
+    """Max over pads and frames, and whether every frame was known (no NaN from unreadable frames)."""
+    stacked = np.concatenate([v.ravel() for v in values]) if values else np.zeros(0)
+    complete = not np.isnan(stacked).any()
+    known = stacked[~np.isnan(stacked)]
+    return (float(known.max()) if known.size else 0.0), complete
+
+
+@rule("safety.summary", "safety", threshold="summary_tolerance_mm")
+def summary(ctx: EpisodeContext) -> list[Finding]:
+    """meta.safety (max indentation, slip, normal force) equals the arrays' maxima within summary_tolerance_mm
+    / summary_tolerance_n."""
+    cfg, pads, safety = ctx.config, ctx.meta.pads, ctx.meta.safety
+    depth, depth_complete = _episode_max([ctx.summary(f"{p}/depth_max_um") / 1000.0 for p in pads])
+    slip, _ = _episode_max([ctx.array(f"tactile/{p}/slip_mm").astype(np.float64) for p in pads])
+    force, _ = _episode_max([ctx.array(f"tactile/{p}/normal_force_n").astype(np.float64) for p in pads])
+    checks = (("max_indentation_mm", safety.max_indentation_mm, depth, cfg.summary_tolerance_mm, depth_complete),
+              ("max_slip_mm", safety.max_slip_mm, slip, cfg.summary_tolerance_mm, True),
+              ("max_normal_force_n", safety.max_normal_force_n, force, cfg.summary_tolerance_n, True))
+    out = []
+    for key, stated, actual, tolerance, complete in checks:
+        # With unreadable frames the recomputed maximum is a lower bound: only an understatement is certain.
+        wrong = not (abs(stated - actual) <= tolerance) if complete else not (stated >= actual - tolerance)
+        if wrong:
+            out.append(Finding(message=f"meta.safety.{key} is {stated:.6g} but the arrays give {actual:.6g}",
+                               field=f"meta.safety.{key}", values=[stated], limits=[actual]))
+    return out

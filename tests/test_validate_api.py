@@ -24,7 +24,7 @@ from univtac_data.validators import (
     validate,
 )
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "validation.md"
+DOCS = Path(__file__).resolve().parents[1] / "spec" / "validation.md"
 
 
 def test_exported_members():
@@ -49,7 +49,7 @@ def test_every_rule_is_documented_and_its_threshold_exists():
 
 
 def test_docs_quote_the_generated_rule_table():
-    assert rule_table_markdown() in DOCS.read_text(), "regenerate the table in docs/validation.md"
+    assert rule_table_markdown() in DOCS.read_text(), "regenerate the table in spec/validation.md"
 
 
 def test_docs_list_every_config_default():

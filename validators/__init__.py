@@ -4,7 +4,7 @@
 >>> report = validate("data/my_dataset", groups=("schema", "safety"))   # doctest: +SKIP
 >>> report.ok, report.failed_episodes()                                    # doctest: +SKIP
 
-The rule table (``rule_table_markdown()``) is what ``docs/validation.md`` quotes.
+The rule table (``rule_table_markdown()``) is what ``spec/validation.md`` quotes.
 """
 
 from univtac_data.validators.config import ValidationConfig

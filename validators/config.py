@@ -1,7 +1,7 @@
 """Thresholds of the validators: one typed, frozen config with the unit in every name.
 
 Sensor-specific limits (safe indentation, gel thickness, marker radius, image size) come from the
-episode's ``SensorProfile``, not from here. Defaults are documented in ``docs/validation.md``.
+episode's ``SensorProfile``, not from here. Defaults are documented in ``spec/validation.md``.
 """
 
 from __future__ import annotations

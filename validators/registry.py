@@ -107,7 +107,7 @@ def all_rules() -> list[Rule]:
 
 
 def rule_table_markdown() -> str:
-    """The rule table of ``docs/validation.md``, generated from the registry."""
+    """The rule table of ``spec/validation.md``, generated from the registry."""
     lines = ["| rule | group | scope | threshold | checks |", "|---|---|---|---|---|"]
     for r in all_rules():
         threshold = f"`{r.threshold}`" if r.threshold else "-"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SheetFrame", "contact_sheet"]
+__all__ = ["SheetFrame", "contact_sheet", "image_gallery"]
 
 
 @dataclass(frozen=True)
@@ -86,3 +86,30 @@ def contact_sheet(frames: Sequence[object], path: str | Path, title: str = "") -
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def image_gallery(tiles: Sequence[tuple[np.ndarray, str]], path: str | Path, title: str = "",
+                  columns: int = 7) -> Path:
+    """Write a PNG grid of ``(image (H, W, 3) uint8, caption)`` tiles to ``path`` (one look at many episodes)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    if not tiles:
+        raise ValueError("image_gallery needs at least one tile")
+    columns = max(1, min(columns, len(tiles)))
+    rows = -(-len(tiles) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(2.6 * columns, 2.3 * rows + 0.5), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, (image, caption) in zip(axes.ravel(), tiles):
+        ax.imshow(image)
+        ax.set_title(caption, fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.97) if title else None)
+    out = Path(path)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    return out

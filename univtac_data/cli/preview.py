@@ -1,6 +1,7 @@
 """``univtac-data preview``: a contact sheet PNG of a dataset episode's tactile frames, or of a demo press.
 
     univtac-data preview PATH --out FILE.png [--episode ID] [--frames K] [--pad left|right]
+    univtac-data preview PATH --gallery --out FILE.png [--max-episodes N]
     univtac-data preview --sensor gelsight_mini --demo sphere --out FILE.png [--method elastic] [--depth MM]
 """
 
@@ -26,6 +27,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--episode", help="episode id (default: the first)")
     parser.add_argument("--frames", type=int, default=4, help="frames shown, evenly spaced (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
+    parser.add_argument("--gallery", action="store_true",
+                        help="one tile per episode (its deepest press) instead of one episode's frames")
+    parser.add_argument("--max-episodes", type=int, default=42, help="gallery: episodes shown (default 42)")
     parser.add_argument("--sensor", help=f"demo mode: sensor profile ({', '.join(SENSORS)})")
     parser.add_argument("--demo", help="demo mode: indenter (sphere, cylinder, punch, cross, two_spheres)")
     parser.add_argument("--method", choices=("geometric", "elastic"), default="elastic", help="demo contact model")
@@ -66,26 +70,39 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
     episode_id = episode if episode is not None else ids[0]
     if episode_id not in ids:
         raise DatasetError(f"{path}: no episode {episode_id!r} (episodes: {', '.join(ids[:5])}{'...' if len(ids) > 5 else ''})")
-    ep = dataset.load_episode(episode_id)
-    if pad not in ep.meta.pads:
-        raise DatasetError(f"{path}: episode {episode_id!r} has no pad {pad!r} (pads: {', '.join(ep.meta.pads)})")
-    key = f"tactile/{pad}/"
-    try:
-        marked, pure = ep.arrays[key + "marked_rgb"], ep.arrays[key + "pure_rgb"]
-        depth_um, ref, markers = ep.arrays[key + "depth_um"], ep.arrays[key + "markers_ref_px"], ep.arrays[key + "markers_px"]
-    except KeyError as missing:
-        raise DatasetError(f"{path}: episode {episode_id!r} lacks {missing.args[0]}") from None
-    total = marked.shape[0]
-    picks = np.unique(np.linspace(0, total - 1, max(1, min(n, total))).round().astype(int))
-    frames = [
-        SheetFrame(marked[t], pure[t], depth_um[t].astype(np.float32) / 1000.0, ref, markers[t], f"frame {t}")
-        for t in picks
-    ]
-    return frames, f"{episode_id} ({ep.meta.sensor}, pad {pad}, {total} frames)"
+    with dataset.open_episode(episode_id) as handle:  # read only the frames shown
+        meta = handle.meta
+        if pad not in meta.pads:
+            raise DatasetError(f"{path}: episode {episode_id!r} has no pad {pad!r} (pads: {', '.join(meta.pads)})")
+        key = f"tactile/{pad}/"
+        picks = np.unique(np.linspace(0, meta.n_frames - 1, max(1, min(n, meta.n_frames))).round().astype(int))
+        ref = handle.read(key + "markers_ref_px")
+        frames = [
+            SheetFrame(handle.read(key + "marked_rgb", int(t)), handle.read(key + "pure_rgb", int(t)),
+                       handle.read(key + "depth_um", int(t)).astype(np.float32) / 1000.0, ref,
+                       handle.read(key + "markers_px", int(t)), f"frame {t}")
+            for t in picks
+        ]
+    return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames)"
+
+
+def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarray, str]], str]:
+    """One tile per episode: I_marked at the frame of its deepest press."""
+    dataset = Dataset.open(path)
+    if not dataset.episode_ids:
+        raise DatasetError(f"{path}: the dataset has no episodes")
+    tiles = []
+    for episode_id in dataset.episode_ids[:limit]:
+        with dataset.open_episode(episode_id) as handle:
+            key = f"tactile/{pad if pad in handle.meta.pads else handle.meta.pads[0]}/"
+            deepest = int(np.argmax(handle.read(key + "depth_um").reshape(handle.meta.n_frames, -1).max(axis=1)))
+            tiles.append((handle.read(key + "marked_rgb", deepest), f"{handle.meta.name} ({handle.meta.sensor})"))
+    shown = min(limit, len(dataset))
+    return tiles, f"{path}: {shown} of {len(dataset)} episodes, I_marked at each episode's deepest press"
 
 
 def run(args: argparse.Namespace) -> int:
-    from univtac_data.generators.tactile import contact_sheet
+    from univtac_data.generators.tactile import contact_sheet, image_gallery
 
     if args.demo is not None or args.sensor is not None:
         if args.path is not None:
@@ -94,6 +111,10 @@ def run(args: argparse.Namespace) -> int:
                                      args.frames)
     elif args.path is None:
         raise DatasetError("preview: give a dataset PATH, or --sensor NAME --demo INDENTER")
+    elif args.gallery:
+        tiles, title = _gallery_tiles(args.path, args.pad, args.max_episodes)
+        print(f"wrote {image_gallery(tiles, args.out, title=title)}")
+        return 0
     else:
         frames, title = _dataset_frames(args.path, args.episode, args.frames, args.pad)
     out = contact_sheet(frames, args.out, title=title)

@@ -1,0 +1,144 @@
+"""Indenter generation end to end, one core: frames per second per sensor and contact method (physics,
+tactile, compression, write), bytes per frame on disk, where the time goes, and what the paper-size
+corpus (205,826 frames) would take on a 2-core machine.
+
+    python benchmarks/generate_throughput.py [--frames 60] [--shapes sphere,cross,torus,wave]
+
+Writes benchmarks/results/generate_throughput.json and docs/figures/generate_throughput.png.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the numbers claim
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import json  # noqa: E402
+import pstats  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from common import FIGURES, RESULTS, machine  # noqa: E402
+
+from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
+from univtac_data.schema.sensors import SENSORS  # noqa: E402
+from univtac_data.storage import Location, write_episode_file  # noqa: E402
+
+PAPER_FRAMES = 205_826
+UNIVTAC_BYTES_PER_FRAME = 242 * 2**30 / 191_173  # 242 GiB for 191,173 frames (format-lessons.md)
+STAGES = {  # profile entries (function name, file suffix) -> stage
+    ("mj_step", ""): "physics (MuJoCo)",
+    ("mj_geomDistance", ""): "physics (MuJoCo)",
+    ("gap_field", "gap_field.py"): "gap field",
+    ("solve_contact", "contact.py"): "contact solve",
+    ("solve_shear", "shear.py"): "shear and slip",
+    ("render_shaded", "optics.py"): "optics",
+    ("draw_markers", "markers.py"): "markers",
+    ("write_episode_file", "dataset.py"): "compress and write",
+}
+
+
+def one(sensor: str, method: str, shape: str, frames: int, out: str, index: int) -> dict[str, float]:
+    spec = IndenterEpisodeSpec(sensor, shape, index, frames=frames, contact_method=method)
+    start = time.perf_counter()
+    episode = run_indenter_episode(spec)
+    simulated = time.perf_counter()
+    written = write_episode_file(Location.parse(out), "hdf5", episode)
+    end = time.perf_counter()
+    return {"frames": frames, "simulate_s": simulated - start, "write_s": end - simulated,
+            "bytes": written.row.bytes}
+
+
+def _stage_of(path: str, name: str) -> str | None:
+    for (fn, suffix), stage in STAGES.items():
+        if suffix and name == fn and path.endswith(suffix):
+            return stage
+        if not suffix and path == "~" and fn in name:  # a C function (MuJoCo): pstats files it under "~"
+            return stage
+    return None
+
+
+def profile_stages(sensor: str, method: str, shape: str, frames: int, out: str) -> dict[str, float]:
+    profiler = cProfile.Profile()
+    profiler.runcall(one, sensor, method, shape, frames, out, 999)
+    stats = pstats.Stats(profiler)
+    total = max(v[3] for v in stats.stats.values())  # type: ignore[attr-defined]
+    shares: dict[str, float] = {}
+    for (path, _line, name), value in stats.stats.items():  # type: ignore[attr-defined]
+        stage = _stage_of(path, name)
+        if stage is not None:
+            shares[stage] = shares.get(stage, 0.0) + value[3] / total
+    shares["other (control, recording, Python)"] = max(0.0, 1.0 - sum(shares.values()))
+    return {k: round(v, 3) for k, v in shares.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--shapes", default="sphere,cross,torus,wave")
+    args = parser.parse_args()
+    shapes = args.shapes.split(",")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for sensor in SENSORS:
+            for method in ("geometric", "elastic"):
+                out = os.path.join(tmp, f"{sensor}-{method}")
+                runs = [one(sensor, method, shape, args.frames, out, k) for k, shape in enumerate(shapes)]
+                frames = sum(r["frames"] for r in runs)
+                seconds = sum(r["simulate_s"] + r["write_s"] for r in runs)
+                row = {
+                    "sensor": sensor, "method": method, "frames": frames,
+                    "frames_per_s_per_core": round(frames / seconds, 1),
+                    "write_share": round(sum(r["write_s"] for r in runs) / seconds, 3),
+                    "bytes_per_frame": round(sum(r["bytes"] for r in runs) / frames),
+                    "paper_corpus_hours_on_2_cores": round(PAPER_FRAMES / (2 * frames / seconds) / 3600, 2),
+                }
+                rows.append(row)
+                print(json.dumps(row), file=sys.stderr)
+        profile = {m: profile_stages("gelsight_mini", m, "cross", args.frames, os.path.join(tmp, "profile"))
+                   for m in ("geometric", "elastic")}
+    result = {
+        "machine": machine(threads_used=1), "shapes": shapes, "frames_per_episode": args.frames,
+        "targets": {"geometric_frames_per_s": 100, "elastic_frames_per_s": 25,
+                    "bytes_per_frame_max": round(UNIVTAC_BYTES_PER_FRAME / 5)},
+        "univtac_bytes_per_frame": round(UNIVTAC_BYTES_PER_FRAME), "rows": rows,
+        "time_share_gelsight_mini_cross": profile,
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "generate_throughput.json").write_text(json.dumps(result, indent=2) + "\n")
+    chart(result, FIGURES / "generate_throughput.png")
+    print(json.dumps(result, indent=2))
+
+
+def chart(result: dict, path: os.PathLike[str]) -> None:  # type: ignore[type-arg]
+    rows = result["rows"]
+    labels = [f"{r['sensor']}\n{r['method']}" for r in rows]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 4.5))
+    colours = ["tab:blue" if r["method"] == "geometric" else "tab:orange" for r in rows]
+    ax1.bar(labels, [r["frames_per_s_per_core"] for r in rows], color=colours)
+    ax1.axhline(result["targets"]["geometric_frames_per_s"], color="tab:blue", ls="--", lw=1, label="target, geometric")
+    ax1.axhline(result["targets"]["elastic_frames_per_s"], color="tab:orange", ls="--", lw=1, label="target, elastic")
+    ax1.set_ylabel("frames / s / core, end to end")
+    ax1.legend(fontsize=8)
+    ax1.tick_params(axis="x", labelsize=7)
+    ax2.bar(labels, [r["bytes_per_frame"] / 1024 for r in rows], color=colours)
+    ax2.axhline(result["targets"]["bytes_per_frame_max"] / 1024, color="k", ls="--", lw=1,
+                label="target: UniVTAC / 5")
+    ax2.set_ylabel("KiB per frame on disk (both pads, lossless)")
+    ax2.legend(fontsize=8)
+    ax2.tick_params(axis="x", labelsize=7)
+    fig.suptitle(f"Indenter generation, one core ({result['machine']['cpu']})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()

@@ -40,7 +40,7 @@ from univtac_data.generators.indenter_scene import (
 from univtac_data.generators.indenters import TIP_HEIGHT_M, get_indenter
 from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, move, rotate
 from univtac_data.generators.recording import build_episode
-from univtac_data.generators.sim import GripperSim, SimConfig
+from univtac_data.generators.sim import FrameBudgetReached, GripperSim, SimConfig
 from univtac_data.schema.models import GeneratorInfo
 from univtac_data.schema.sensors import get_sensor
 from univtac_data.version import __version__
@@ -105,16 +105,32 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
                                                               gripper_pos=start))  # type: ignore[arg-type]
     sim = GripperSim(model, profile, {p: indenter_geom_names(indenter, PAD_SIDE[p]) for p in PADS}, OBJECT_NAME,
                      PRIMITIVE_NAMES, SimConfig(record_rate_hz=spec.record_rate_hz,
-                                                contact_method=spec.contact_method))
+                                                contact_method=spec.contact_method, max_frames=spec.frames))
     span = 2 * (BASE_HALF_THICKNESS_M + TIP_HEIGHT_M)
     sim.set_opening(span + 2 * margin)
-    for _ in range(50):  # settle the fingers at the start opening before the clock matters
+    for _ in range(50):  # settle the fingers at the start opening; recording starts after
         sim.tick()
     sim.start_recording()
 
-    outcome = grasp(sim, GraspParams(threshold_mm=threshold))
+    try:
+        _script(sim, rng, threshold)
+    except FrameBudgetReached:
+        pass
+    if not sim.finite():
+        raise FloatingPointError(f"{spec.episode_id}: the simulation went non-finite at t = {sim.time_s:.3f} s")
+    generator = GeneratorInfo(name=GENERATOR_NAME, version=__version__, settings={
+        **asdict(spec), "seed": spec.seed, "yaw_rad": yaw, "offset_m": offset.tolist(), "threshold_mm": threshold,
+    })
+    return build_episode(sim.frames, episode_id=spec.episode_id, kind="indenter", name=spec.shape,
+                         sensor=spec.sensor, seed=spec.seed, generator=generator, success=None,
+                         rate_hz=spec.record_rate_hz, object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES)
+
+
+def _script(sim: GripperSim, rng: np.random.Generator, threshold: float) -> None:
+    """Grasp, then random twists, tilts, moves and holds until the frame budget ends it."""
+    grasp(sim, GraspParams(threshold_mm=threshold))
     twist, tilt_y, tilt_z, shift_y, shift_z = 0.0, 0.0, 0.0, 0.0, 0.0
-    while len(sim.frames) < spec.frames:
+    while True:
         action = rng.choice(("twist", "tilt", "move", "move", "hold"))
         if action == "twist":
             angle = _bounded(rng, twist, math.radians(1), math.radians(4), math.radians(6))
@@ -136,12 +152,4 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
         else:
             hold(sim, rng.uniform(0.03, 0.1))
         if not sim.finite():
-            raise FloatingPointError(f"{spec.episode_id}: the simulation went non-finite at t = {sim.time_s:.3f} s")
-    frames = sim.frames[: spec.frames]
-    generator = GeneratorInfo(name=GENERATOR_NAME, version=__version__, settings={
-        **asdict(spec), "seed": spec.seed, "yaw_rad": yaw, "offset_m": offset.tolist(),
-        "threshold_mm": threshold, "grasp_reached": outcome.reached,
-    })
-    return build_episode(frames, episode_id=spec.episode_id, kind="indenter", name=spec.shape, sensor=spec.sensor,
-                         seed=spec.seed, generator=generator, success=None, rate_hz=spec.record_rate_hz,
-                         object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES)
+            return

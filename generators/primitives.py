@@ -35,9 +35,12 @@ class GraspParams:
     # Fraction of the depth error corrected per control tick. UniVTAC steps a kinematic joint by the whole
     # error; our finger is a servo that takes a few ticks to follow, and a whole-error step makes it hunt.
     gain_per_tick: float = 0.25
-    # How far a finger's set-point may run ahead of the finger, m. A finger slowed by its force limit or
-    # by contact would otherwise let the set-point race past the object and squeeze open-loop when it lands.
-    max_lead_m: float = 0.0002
+    # How far a finger's set-point may run ahead of the finger, m. Before contact a finger slowed by its
+    # force limit would otherwise let the set-point race past the object and land with an open-loop squeeze.
+    # In contact the lead is the squeeze itself (servo force = kp x lead) and grows only at v_slow: MuJoCo
+    # gives every contact point its own stiffness, so a ring of twelve capsules needs twelve times the force.
+    max_lead_free_m: float = 0.0002
+    max_lead_contact_m: float = 0.002
     settle_s: float = 0.05  # reached for this long ends the grasp
     timeout_s: float = 3.0
 
@@ -67,7 +70,8 @@ def grip_regulator(params: GraspParams, fast_allowed: bool = False):  # type: ig
         actual = sim.finger_positions_m()
         for k, pad in enumerate(PADS):
             wanted = sim.finger_setpoints_m[k] + _finger_step(params, gaps[pad], sim.dt_s, fast_allowed)
-            sim.finger_setpoints_m[k] = min(max(wanted, actual[k] - params.max_lead_m), actual[k] + params.max_lead_m)
+            lead = params.max_lead_contact_m if gaps[pad] <= 0.0 else params.max_lead_free_m
+            sim.finger_setpoints_m[k] = min(max(wanted, actual[k] - lead), actual[k] + lead)
 
     return regulate
 

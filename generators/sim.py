@@ -2,12 +2,13 @@
 
 The class owns the MuJoCo model/data, the commanded set-points (end-effector pose, gel opening) and the
 per-pad tactile state; primitives (``primitives.py``) drive it through ``tick``. Physics runs at the model's
-timestep; the controller ticks every ``control_period_steps`` physics steps; a frame is recorded every
-``1 / record_rate_hz`` s. Everything is deterministic for a given model and command sequence.
+timestep; the controller ticks every ``control_period_steps`` physics steps; after ``start_recording()`` a
+frame is recorded every ``1 / record_rate_hz`` s. Everything is deterministic for a given model and command sequence.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -28,6 +29,13 @@ from univtac_data.generators.tactile import (
 from univtac_data.schema.sensors import SensorProfile
 
 GAP_PROBE_MAX_MM = 10.0  # farthest pad-object distance the controllers need to know, mm
+# Gap beyond this reads as "far" in the tactile gap field: the contact solve and the shading only see the
+# gel where the object is within a fraction of a millimetre, so farther geometry is not worth evaluating.
+TACTILE_GAP_CUTOFF_MM = 2.0
+
+
+class FrameBudgetReached(Exception):
+    """Raised by ``GripperSim.tick`` once ``SimConfig.max_frames`` frames are recorded: scripts stop there."""
 
 
 @dataclass(frozen=True)
@@ -38,6 +46,7 @@ class SimConfig:
     # Image pixels per cell of the stick/slip shear solve. 8 px is 0.66 mm on a GelSight Mini, a quarter of
     # the marker pitch; the solve dominates a frame and costs about 3x more at 4 px.
     shear_step_px: int = 8
+    max_frames: int | None = None  # stop (FrameBudgetReached) once this many frames are recorded
 
 
 @dataclass
@@ -91,10 +100,10 @@ class GripperSim:
         self.finger_setpoints_m = self.data.qpos[self._slides].astype(float).copy()
         self.grip_regulator: Callable[[GripperSim], None] | None = None
         self._record_origin_s = 0.0
-        self._next_record_s = 0.0
+        self._next_record_s = math.inf  # nothing is recorded before start_recording()
 
     def start_recording(self) -> None:
-        """Forget recorded frames and record from now on (frame 0 = the next tick)."""
+        """Record from now on (frame 0 = the next tick), forgetting any earlier frames."""
         self.frames.clear()
         self._record_origin_s = self._next_record_s = self.time_s
 
@@ -164,6 +173,8 @@ class GripperSim:
         self.data.ctrl[self._actuators] = self.finger_setpoints_m
         for _ in range(self.config.control_period_steps):
             if self.config.record_rate_hz is not None and self.time_s + 1e-12 >= self._next_record_s:
+                if self.config.max_frames is not None and len(self.frames) >= self.config.max_frames:
+                    raise FrameBudgetReached
                 self._record()
             mujoco.mj_step(self.model, self.data)
 
@@ -175,7 +186,8 @@ class GripperSim:
             site = self._pad_sites[pad]
             pad_pos, pad_mat = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
             rel = relative_pose(pad_pos, pad_mat, obj_pos, obj_mat)
-            gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid)
+            gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid,
+                            cutoff_mm=TACTILE_GAP_CUTOFF_MM)
             tangential_mm, twist_rad = self._motion_since_onset(pad, gap, pad_pos, pad_mat, obj_pos, obj_mat)
             frame = simulate_frame(
                 self.profile, gap, method=self.config.contact_method,  # type: ignore[arg-type]

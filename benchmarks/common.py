@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import importlib
+import importlib.metadata
 import os
 import platform
 from pathlib import Path
@@ -28,7 +28,7 @@ def machine(threads_used: int | None = None, packages: tuple[str, ...] = ("numpy
     if threads_used is not None:
         info["threads_used"] = threads_used
     for name in packages:
-        info[name] = importlib.import_module(name).__version__
+        info[name] = importlib.metadata.version(name)
     try:
         info["load_average_1min_at_start"] = os.getloadavg()[0]
     except OSError:

@@ -28,9 +28,9 @@ def test_readme_main_command_installs_torch_first():
 
 def test_readme_python_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    make_dataset(tmp_path / "out/demo", "hdf5", 2, n_frames=12)
+    make_dataset(tmp_path / "out/indenters", "hdf5", 4, n_frames=12)  # stands in for the generated corpus
     examples = re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S)
     assert examples
     for example in examples:
         exec(compile(example, "README.md", "exec"), {})
-    assert (tmp_path / "out/copy/episodes/ep1.zarr").is_dir()
+    assert (tmp_path / "out/copy/episodes/ep0.zarr").is_dir()

@@ -16,8 +16,9 @@ __all__ = ["box_entry", "capsule_entry", "cylinder_entry", "ellipsoid_entry", "m
 
 def _local_rays(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Line origins (ny, nx, 3) on the gel plane and the common direction (3,) in the object's frame."""
-    gx, gy = np.meshgrid(x - pos[0], y - pos[1])
-    origin = np.stack([gx, gy, np.full_like(gx, -pos[2])], axis=-1) @ rot  # rot.T applied to row vectors
+    # rot.T @ (x - px, y - py, -pz) for every cell, as broadcast sums of rot's rows: no (ny, nx, 3) temporaries
+    # from meshgrid and stack, which cost more than the arithmetic on these small windows
+    origin = ((x - pos[0])[None, :, None] * rot[0] + (y - pos[1])[:, None, None] * rot[1]) - pos[2] * rot[2]
     return origin, rot[2].copy()
 
 

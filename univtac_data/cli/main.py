@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+from typing import NoReturn
 
 from univtac_data.storage.errors import DatasetError
 from univtac_data.version import FORMAT_VERSION, __version__
@@ -43,5 +45,19 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def entry() -> NoReturn:
+    """The console script: run ``main`` and end the process with its exit code.
+
+    The process ends with ``os._exit`` after flushing stdout and stderr. Every command has closed and fsynced
+    its files by the time ``main`` returns; what is skipped is the interpreter's teardown of native thread
+    pools (Arrow's I/O pool, BLAS), which now and then aborted a finished run with "terminate called without
+    an active exception" (exit -6) in CI-like runs, turning a success or a clean error into a crash.
+    """
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

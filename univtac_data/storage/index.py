@@ -46,7 +46,9 @@ def read_index(loc: Location) -> dict[str, IndexRow]:
     if not loc.exists(INDEX_PATH):
         return {}
     try:
-        table = pq.read_table(io.BytesIO(loc.read_bytes(INDEX_PATH)))
+        # single-threaded: the index is small, and Arrow's thread pool, once started, can abort the process
+        # at interpreter exit ("terminate called without an active exception", seen in CI-like runs)
+        table = pq.read_table(io.BytesIO(loc.read_bytes(INDEX_PATH)), use_threads=False)
     except (pa.ArrowException, OSError) as error:
         raise CorruptFileError(f"{where}: not a readable Parquet file ({error}); run 'univtac-data reindex'") \
             from None

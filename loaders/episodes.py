@@ -95,6 +95,15 @@ def select_episodes(datasets: Sequence[Dataset], *, episodes: Sequence[str] | No
     return refs
 
 
+def open_selected(paths: Sequence[str], config: Any) -> tuple[list[Dataset], list[EpisodeRef]]:
+    """Open ``paths`` and pick the episodes a loader config asks for (its ``episodes``, ``split``,
+    ``val_fraction``, ``split_seed``, ``sensors`` and ``names``)."""
+    datasets = [Dataset.open(p) for p in paths]
+    refs = select_episodes(datasets, episodes=config.episodes, split=config.split, val_fraction=config.val_fraction,
+                           split_seed=config.split_seed, sensors=config.sensors, names=config.names)
+    return datasets, refs
+
+
 def require_paths(refs: Sequence[EpisodeRef], paths: Sequence[str], datasets: Sequence[Dataset]) -> None:
     """Raise ``ValueError`` naming the first episode that lacks one of ``paths``."""
     for ref in refs:

@@ -46,10 +46,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from univtac_data.storage import Dataset
 
-from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, require_paths, \
-    select_episodes
+from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, open_selected, require_paths
 from univtac_data.loaders.sampler import FrameTable
 from univtac_data.loaders.split import Split
 
@@ -127,10 +125,7 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
             -> None:
         self.config = config
         self.transform = transform
-        self.datasets = [Dataset.open(p) for p in paths]
-        self.episodes: list[EpisodeRef] = select_episodes(
-            self.datasets, episodes=config.episodes, split=config.split, val_fraction=config.val_fraction,
-            split_seed=config.split_seed, sensors=config.sensors, names=config.names)
+        self.datasets, self.episodes = open_selected(paths, config)
         pads = [tuple(p for p in ref.pads if config.pads is None or p in config.pads) for ref in self.episodes]
         if not any(pads):
             raise ValueError(f"no episode has any of the pads {list(config.pads or [])}; "

@@ -31,10 +31,8 @@ import numpy as np
 import torch
 
 from univtac_data.schema.fields import field_for_path
-from univtac_data.storage import Dataset
 
-from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, require_paths, \
-    select_episodes
+from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, open_selected, require_paths
 from univtac_data.loaders.frames import image_chw
 from univtac_data.loaders.normalize import NORMALIZE_MODES, NormalizeMode, Normalizer
 from univtac_data.loaders.sampler import Window, WindowTable
@@ -129,10 +127,7 @@ class PolicyChunkDataset(torch.utils.data.Dataset[Sample]):
             -> None:
         self.config = config
         self.transform = transform
-        self.datasets = [Dataset.open(p) for p in paths]
-        self.episodes: list[EpisodeRef] = select_episodes(
-            self.datasets, episodes=config.episodes, split=config.split, val_fraction=config.val_fraction,
-            split_seed=config.split_seed, sensors=config.sensors, names=config.names)
+        self.datasets, self.episodes = open_selected(paths, config)
         require_paths(self.episodes, [*config.obs_keys, config.action_key], self.datasets)
         self.table = WindowTable([ref.n_frames for ref in self.episodes], config.history, config.chunk)
         self.reader = EpisodeReader(self.datasets, max_open=config.max_open_episodes)

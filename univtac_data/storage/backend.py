@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ValidationError
@@ -35,22 +35,31 @@ def _prune_unknown(model: type[BaseModel], data: Any) -> Any:
     return out
 
 
-def parse_episode_meta(raw: Any, where: str) -> EpisodeMeta:
-    """Episode metadata from its stored JSON (text or object); errors name ``where``."""
+M = TypeVar("M", bound=BaseModel)
+
+
+def parse_versioned(model: type[M], raw: Any, where: str, what: str) -> M:
+    """A versioned JSON document (text or object) as ``model``: another major version is refused, keys a newer
+    minor version added are dropped, anything else wrong is a ``CorruptFileError`` naming ``where``."""
     try:
         data = json.loads(raw) if isinstance(raw, (str, bytes)) else raw
-    except json.JSONDecodeError as error:
-        raise CorruptFileError(f"{where}: episode metadata is not valid JSON ({error.msg})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise CorruptFileError(f"{where}: {what} is not valid JSON ({error})") from None
     if not isinstance(data, dict) or "format_version" not in data:
-        raise CorruptFileError(f"{where}: episode metadata has no format_version")
+        raise CorruptFileError(f"{where}: {what} has no format_version")
     if check_readable(str(data["format_version"]), where):
-        data = _prune_unknown(EpisodeMeta, data)
+        data = _prune_unknown(model, data)
     try:
-        return EpisodeMeta.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as error:
         first = error.errors()[0]
-        loc = ".".join(str(p) for p in first["loc"]) or "metadata"
-        raise CorruptFileError(f"{where}: episode metadata field {loc}: {first['msg']}") from None
+        loc = ".".join(str(p) for p in first["loc"]) or "document"
+        raise CorruptFileError(f"{where}: {what} field {loc}: {first['msg']}") from None
+
+
+def parse_episode_meta(raw: Any, where: str) -> EpisodeMeta:
+    """Episode metadata from its stored JSON (text or object); errors name ``where``."""
+    return parse_versioned(EpisodeMeta, raw, where, "episode metadata")
 
 
 class EpisodeHandle(ABC):

@@ -23,12 +23,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import ValidationError
 
 from univtac_data.episode import Episode, check_episode
 from univtac_data.schema.models import DatasetInfo, IndexRow, Manifest, ManifestEntry
 from univtac_data.schema.sensors import SensorProfile, get_sensor
-from univtac_data.storage.backend import EpisodeHandle, EpisodeStore, _prune_unknown
+from univtac_data.storage.backend import EpisodeHandle, EpisodeStore, parse_versioned
 from univtac_data.storage.errors import (
     CorruptFileError,
     DatasetError,
@@ -46,7 +45,6 @@ from univtac_data.storage.index import (
     write_manifest,
 )
 from univtac_data.storage.zarr_store import ZarrStore
-from univtac_data.version import check_readable
 
 EPISODES_DIR = "episodes"
 STORES: dict[str, EpisodeStore] = {"hdf5": HDF5Store(), "zarr": ZarrStore()}
@@ -63,20 +61,7 @@ def episode_relpath(episode_id: str, store: EpisodeStore) -> str:
 
 
 def read_info(loc: Location) -> DatasetInfo:
-    where = loc.url_of(INFO_PATH)
-    try:
-        data = json.loads(loc.read_bytes(INFO_PATH))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise CorruptFileError(f"{where}: not valid JSON ({error})") from None
-    if not isinstance(data, dict) or "format_version" not in data:
-        raise CorruptFileError(f"{where}: has no format_version")
-    if check_readable(str(data["format_version"]), where):
-        data = _prune_unknown(DatasetInfo, data)
-    try:
-        return DatasetInfo.model_validate(data)
-    except ValidationError as error:
-        first = error.errors()[0]
-        raise CorruptFileError(f"{where}: field {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+    return parse_versioned(DatasetInfo, loc.read_bytes(INFO_PATH), loc.url_of(INFO_PATH), "dataset description")
 
 
 def write_info(loc: Location, info: DatasetInfo) -> None:

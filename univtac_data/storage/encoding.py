@@ -17,7 +17,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from univtac_data.schema.fields import FieldSpec
+from collections.abc import Iterator
+
+import numpy as np
+
+from univtac_data.episode import Episode
+from univtac_data.schema.fields import FieldSpec, field_for_path
 
 SHARD_FRAMES = 128
 DENSE_CHUNK_FRAMES = 64
@@ -56,3 +61,14 @@ def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
     shards = None if shard_t is None or shard_t == chunk_t else (shard_t, *rest_chunks)
     shuffle = "bit" if spec.codec == "depth" else "byte"
     return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, shuffle, storage_dtype)
+
+
+def encoded_arrays(episode: Episode) -> Iterator[tuple[str, np.ndarray, Encoding]]:
+    """Each array of a checked episode, in path order, in its storage dtype, with its encoding."""
+    for path in sorted(episode.arrays):
+        spec = field_for_path(path)
+        if spec is None:
+            raise ValueError(f"episode {episode.meta.episode_id}: {path} is not a field of the format")
+        array = episode.arrays[path]
+        encoding = encoding_for(spec, array.shape)
+        yield path, array.astype(encoding.storage_dtype, copy=False), encoding

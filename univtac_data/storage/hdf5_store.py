@@ -10,9 +10,8 @@ import hdf5plugin
 import numpy as np
 
 from univtac_data.episode import Episode, meta_json
-from univtac_data.schema.fields import field_for_path
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import encoding_for
+from univtac_data.storage.encoding import encoded_arrays
 from univtac_data.storage.errors import CorruptFileError, DatasetError
 from univtac_data.storage.fs import Location, fsync_tree
 
@@ -88,12 +87,7 @@ class HDF5Store(EpisodeStore):
         with h5py.File(path, "w", libver=("v110", "v110"), track_order=True) as handle:
             handle.attrs[VERSION_ATTR] = episode.meta.format_version
             handle.attrs[META_ATTR] = meta_json(episode.meta)
-            for array_path in sorted(episode.arrays):
-                array = episode.arrays[array_path]
-                spec = field_for_path(array_path)
-                assert spec is not None, array_path  # check_episode ran before
-                enc = encoding_for(spec, array.shape)
-                data = array.astype(enc.storage_dtype, copy=False)
+            for array_path, data, enc in encoded_arrays(episode):
                 handle.create_dataset(
                     array_path, data=data, chunks=enc.chunks if data.size else None, fletcher32=bool(data.size),
                     track_times=False, **(_blosc(enc.blosc_cname, enc.blosc_clevel, enc.shuffle) if data.size else {}),

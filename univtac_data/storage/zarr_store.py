@@ -10,9 +10,8 @@ import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
 
 from univtac_data.episode import Episode
-from univtac_data.schema.fields import field_for_path
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import encoding_for
+from univtac_data.storage.encoding import encoded_arrays
 from univtac_data.storage.errors import CorruptFileError
 from univtac_data.storage.fs import Location, fsync_tree
 
@@ -77,12 +76,7 @@ class ZarrStore(EpisodeStore):
         # The metadata is JSON already; store it as an object so zarr tools show it readably.
         group.attrs.update({VERSION_ATTR: episode.meta.format_version,
                             META_ATTR: json.loads(episode.meta.model_dump_json())})
-        for array_path in sorted(episode.arrays):
-            array = episode.arrays[array_path]
-            spec = field_for_path(array_path)
-            assert spec is not None, array_path  # check_episode ran before
-            enc = encoding_for(spec, array.shape)
-            data = array.astype(enc.storage_dtype, copy=False)
+        for array_path, data, enc in encoded_arrays(episode):
             shuffle = "bitshuffle" if enc.shuffle == "bit" else "shuffle"
             target = group.create_array(
                 name=array_path, shape=data.shape, dtype=data.dtype, chunks=enc.chunks,

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
+
 import univtac_data.generators.tactile as tactile
+from univtac_data import get_sensor
 
 
 def test_all_names_exist_and_are_unique() -> None:
@@ -15,3 +19,18 @@ def test_public_callables_are_exported() -> None:
     public = {n for n, v in vars(tactile).items() if not n.startswith("_") and callable(v) and
               getattr(v, "__module__", "").startswith("univtac_data.generators.tactile")}
     assert public <= set(tactile.__all__)
+
+
+def test_elastic_warm_start_changes_iterations_not_the_answer():
+    from univtac_data.generators.tactile import ContactConfig, TactileConfig, simulate_frame, sphere_gap
+
+    profile = get_sensor("gelsight_mini")
+    config = TactileConfig(contact=ContactConfig(method="elastic", tol=1e-6))
+    first = simulate_frame(profile, sphere_gap(profile, radius_mm=5.0, depth_mm=0.50), config=config)
+    cold = simulate_frame(profile, sphere_gap(profile, radius_mm=5.0, depth_mm=0.52), config=config)
+    warm = simulate_frame(profile, sphere_gap(profile, radius_mm=5.0, depth_mm=0.52), config=config,
+                          state=first.state)
+    assert first.state.pressure_mpa is not None
+    assert warm.iterations < cold.iterations
+    assert float(warm.normal_force_n) == pytest.approx(float(cold.normal_force_n), rel=1e-4)
+    assert np.abs(warm.depth_um.astype(int) - cold.depth_um.astype(int)).max() <= 1

@@ -55,8 +55,12 @@ class ContactResult:
     converged: bool = True
 
 
-def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig) -> ContactResult:
-    """Solve the normal contact of a gap field (ny, nx) mm (negative = overlap) on ``grid``."""
+def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
+                  initial_pressure_mpa: np.ndarray | None = None) -> ContactResult:
+    """Solve the normal contact of a gap field (ny, nx) mm (negative = overlap) on ``grid``.
+
+    ``initial_pressure_mpa`` (ny, nx), e.g. the previous frame's: a starting point for the elastic solve
+    (the solution does not depend on it, only the iterations do)."""
     if gap_mm.shape != grid.shape:
         raise ValueError(f"gap field shape must match the grid {grid.shape} (got {gap_mm.shape})")
     if config.method == "geometric":
@@ -66,5 +70,5 @@ def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, conf
     if config.method == "elastic":
         from .contact_elastic import solve_elastic
 
-        return solve_elastic(gap_mm, grid, material, config)
+        return solve_elastic(gap_mm, grid, material, config, initial_pressure_mpa)
     raise ValueError(f"contact method must be 'geometric' or 'elastic' (got {config.method!r})")

@@ -54,15 +54,20 @@ def overlap_window(gap_mm: np.ndarray, margin: float) -> tuple[slice, slice] | N
 
 
 def pk_solve(
-    gap_mm: np.ndarray, dx: float, dy: float, material: Material, tol: float, max_iter: int
+    gap_mm: np.ndarray, dx: float, dy: float, material: Material, tol: float, max_iter: int,
+    p_init: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int, bool]:
-    """Polonsky-Keer CG on a (sub)grid: pressure (ny, nx) MPa, iterations, converged."""
+    """Polonsky-Keer CG on a (sub)grid: pressure (ny, nx) MPa, iterations, converged. ``p_init`` (ny, nx)
+    MPa: a starting pressure (used where it is positive and the gap overlaps)."""
     ks = kernel_set(gap_mm.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
     pad, spec = ks.pad_shape, ks.zz
-    # start from the pressure of a Winkler bed matched to a flat punch of the overlap's size
     overlap = np.maximum(-gap_mm, 0.0)
-    area = np.count_nonzero(overlap) * dx * dy
-    p = overlap * (2.0 * ks.e_star / (np.pi * np.sqrt(area / np.pi)))
+    if p_init is not None and p_init.shape == gap_mm.shape and bool((p_init > 0.0).any()):
+        p = np.where(overlap > 0.0, np.maximum(p_init, 0.0), 0.0)
+    else:
+        # start from the pressure of a Winkler bed matched to a flat punch of the overlap's size
+        area = np.count_nonzero(overlap) * dx * dy
+        p = overlap * (2.0 * ks.e_star / (np.pi * np.sqrt(area / np.pi)))
     t = np.zeros_like(p)
     g_old, delta = 1.0, 0.0
     converged = False
@@ -94,14 +99,19 @@ def pk_solve(
     return p, it, converged
 
 
-def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig) -> ContactResult:
-    """Elastic half-space contact of the gap field (ny, nx) mm on ``grid``; see the module docstring."""
+def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
+                  initial_pressure_mpa: np.ndarray | None = None) -> ContactResult:
+    """Elastic half-space contact of the gap field (ny, nx) mm on ``grid``; see the module docstring.
+    ``initial_pressure_mpa`` (ny, nx) MPa on ``grid`` starts the solve (e.g. the previous frame's)."""
     window = overlap_window(gap_mm, config.window_margin)
     if window is None:
         zeros = np.zeros(grid.shape)
         return ContactResult(zeros, zeros.copy(), np.zeros(grid.shape, dtype=bool), 0.0)
     dx, dy = grid.dx_mm, grid.dy_mm
-    p_win, iterations, converged = pk_solve(gap_mm[window], dx, dy, material, config.tol, config.max_iter)
+    start = None
+    if initial_pressure_mpa is not None and initial_pressure_mpa.shape == gap_mm.shape:
+        start = initial_pressure_mpa[window]
+    p_win, iterations, converged = pk_solve(gap_mm[window], dx, dy, material, config.tol, config.max_iter, start)
     pressure = np.zeros(grid.shape)
     pressure[window] = p_win
     full = kernel_set(grid.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)

@@ -7,7 +7,7 @@ Stick/slip history travels in ``frame.state`` (a :class:`ContactState`), passed 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -146,7 +146,8 @@ def simulate_frame(
 
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
     grid = sensor_grid(profile, step)
-    result = solve_contact(_solver_gap(gap, step), grid, material, contact_cfg)
+    previous = state.pressure_mpa if state is not None else None
+    result = solve_contact(_solver_gap(gap, step), grid, material, contact_cfg, previous)
     overlap = np.maximum(-gap, 0.0)
     surface = upsample_linear(result.depth_mm, step, (h, w))
     depth = np.maximum(surface, overlap)
@@ -200,7 +201,8 @@ def simulate_frame(
         slip_mm=np.float32(shear.slip_mm),
         pure_rgb=pure,
         marked_rgb=marked,
-        state=shear.state,
+        state=replace(shear.state, pressure_mpa=result.pressure_mpa) if contact_cfg.method == "elastic"
+        else shear.state,
         converged=result.converged,
         iterations=result.iterations,
     )

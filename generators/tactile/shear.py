@@ -26,7 +26,7 @@ frames; the slip state is that of the whole contact. Tangential loads do not mov
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft as sfft
@@ -44,13 +44,16 @@ class ContactState:
 
     ``in_contact``: the previous frame had contact. ``reference_mm``: object tangential displacement (x, y) mm
     at which the gel is unstrained. ``reference_twist_rad``: likewise for the twist, rad.
-    ``slip_mm``: sliding accumulated since contact onset, mm.
+    ``slip_mm``: sliding accumulated since contact onset, mm. ``pressure_mpa``: the previous frame's normal
+    pressure on the solver grid (ny, nx) MPa, or None: the elastic solve starts from it (consecutive frames
+    differ little, so the conjugate gradient needs a few iterations instead of tens).
     """
 
     in_contact: bool = False
     reference_mm: tuple[float, float] = (0.0, 0.0)
     reference_twist_rad: float = 0.0
     slip_mm: float = 0.0
+    pressure_mpa: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -57,7 +58,7 @@ class IndenterEpisodeSpec:
     index: int  # episode number within (sensor, shape)
     base_seed: int = 0
     frames: int = 60
-    contact_method: str = "geometric"
+    contact_method: Literal["geometric", "elastic"] = "geometric"
     record_rate_hz: float = 60.0
     timestep_s: float = 0.001
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
@@ -117,8 +117,7 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
 
 
 def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hdf5", workers: int = 1,
-               executor: str = "local", ray_address: str | None = None, progress: bool = True,
-               on_commit: Callable[[WrittenEpisode], None] | None = None) -> RunSummary:
+               executor: str = "local", ray_address: str | None = None, progress: bool = True) -> RunSummary:
     """Make every episode of ``specs`` that the dataset at ``url`` lacks."""
     sensors = sorted({s.sensor for s in specs})
     writer = DatasetWriter.open(url, storage=storage, sensors=sensors)
@@ -140,8 +139,6 @@ def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hd
                 writer.commit([result])
                 summary.written += 1
                 summary.frames += result.row.n_frames
-                if on_commit is not None:
-                    on_commit(result)
             summary.elapsed_s = time.perf_counter() - start
             bar.set_postfix(frames_per_s=f"{summary.frames_per_s:.0f}", failed=len(summary.failed))
             bar.update(1)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -43,13 +44,13 @@ class FrameBudgetReached(Exception):
 class SimConfig:
     record_rate_hz: float | None = 60.0  # UniVTAC saves data at 60 Hz; None records nothing (physics only)
     control_period_steps: int = 2  # controller ticks every 2 physics steps (500 Hz at dt = 1 ms)
-    contact_method: str = "geometric"  # tactile contact model: "geometric" or "elastic"
+    contact_method: Literal["geometric", "elastic"] = "geometric"  # tactile contact model
     # Image pixels per cell of the stick/slip shear solve. 8 px is 0.66 mm on a GelSight Mini, a quarter of
     # the marker pitch; the solve dominates a frame and costs about 3x more at 4 px.
     shear_step_px: int = 8
     max_frames: int | None = None  # stop (FrameBudgetReached) once this many frames are recorded
     # Elastic solver stop: relative change of the pressure. 1e-4 gives the same forces to four digits and
-    # depth within the 1 um storage quantum as 1e-6, in two thirds of the time (docs/generation.md).
+    # depth within the 1 um storage quantum as 1e-6, in two thirds of the time (docs/tactile.md).
     contact_tol: float = 1e-4
 
 
@@ -68,15 +69,13 @@ class RecordedFrame:
     tactile: dict[str, TactileFrame]
     object_in_pad: dict[str, np.ndarray]
     pad_world: dict[str, np.ndarray]
-    mujoco_penetration_mm: float
 
 
 class GripperSim:
     """A scene, its gripper set-points, and the frames recorded so far."""
 
     def __init__(self, model: mujoco.MjModel, profile: SensorProfile, pad_geoms: dict[str, list[str]],
-                 object_body: str, primitive_names: list[str], config: SimConfig | None = None,
-                 on_frame: Callable[[RecordedFrame], None] | None = None) -> None:
+                 object_body: str, primitive_names: list[str], config: SimConfig | None = None) -> None:
         self.model, self.data = model, mujoco.MjData(model)
         self.profile = profile
         self.config = config or SimConfig()
@@ -85,11 +84,10 @@ class GripperSim:
         self.primitive_names = primitive_names
         self.primitive = -1
         self.frames: list[RecordedFrame] = []
-        self.on_frame = on_frame
         self._grid = sensor_grid(profile, 1)
         self._tactile = TactileConfig(
             shear_step=self.config.shear_step_px,
-            contact=ContactConfig(method=self.config.contact_method, tol=self.config.contact_tol),  # type: ignore[arg-type]
+            contact=ContactConfig(method=self.config.contact_method, tol=self.config.contact_tol),
         )
         self._states: dict[str, ContactState | None] = {pad: None for pad in PADS}
         # per pad, while in contact: the object-frame point (m) that sat at the pad centre when the contact
@@ -100,7 +98,6 @@ class GripperSim:
         self._ee_site = model.site("ee").id
         self._pad_sites = {pad: model.site(f"{pad}_pad").id for pad in PADS}
         self._gel_geom_ids = {pad: model.geom(f"{pad}_gel").id for pad in PADS}
-        self._gel_geoms = set(self._gel_geom_ids.values())
         self._object_geom_ids = {pad: [model.geom(g).id for g in geoms] for pad, geoms in pad_geoms.items()}
         mujoco.mj_forward(model, self.data)
         self.ee_setpoint = np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
@@ -160,15 +157,6 @@ class GripperSim:
                            for geom in self._object_geom_ids[pad]) * 1000.0
         return out
 
-    def mujoco_penetration_mm(self) -> float:
-        """Deepest MuJoCo contact penetration involving a gel pad, mm (the stability study reads it)."""
-        worst = 0.0
-        for k in range(self.data.ncon):
-            con = self.data.contact[k]
-            if con.geom1 in self._gel_geoms or con.geom2 in self._gel_geoms:
-                worst = max(worst, -float(con.dist) * 1000)
-        return worst
-
     # --- stepping --------------------------------------------------------------------------------
     def tick(self) -> None:
         """Apply the set-points and advance one control period, recording frames that fall due."""
@@ -197,7 +185,7 @@ class GripperSim:
                             cutoff_mm=TACTILE_GAP_CUTOFF_MM)
             tangential_mm, twist_rad = self._motion_since_onset(pad, gap, pad_pos, pad_mat, obj_pos, obj_mat)
             frame = simulate_frame(
-                self.profile, gap, method=self.config.contact_method,  # type: ignore[arg-type]
+                self.profile, gap, method=self.config.contact_method,
                 tangential_mm=tangential_mm, twist_rad=twist_rad, state=self._states[pad], config=self._tactile,
             )
             self._states[pad] = frame.state
@@ -208,11 +196,9 @@ class GripperSim:
             finger_pos_m=data.qpos[self._slides].astype(np.float32).copy(), ee_setpoint=self.ee_setpoint.copy(),
             opening_setpoint_m=self.opening_setpoint_m, primitive=self.primitive,
             object_world=np.concatenate([obj_pos, mat_to_quat(obj_mat)]), tactile=tactile, object_in_pad=in_pad,
-            pad_world=pad_world, mujoco_penetration_mm=self.mujoco_penetration_mm(),
+            pad_world=pad_world,
         )
         self.frames.append(recorded)
-        if self.on_frame is not None:
-            self.on_frame(recorded)
         assert self.config.record_rate_hz is not None
         self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
 

@@ -76,10 +76,10 @@ def format_table(report: Report) -> str:
         if len(failures) > MAX_LISTED_FINDINGS:
             lines.append(f"  ... {len(failures) - MAX_LISTED_FINDINGS} more (use --json for all)")
     n_failed = len(report.failed_episodes())
-    frames = sum(e.n_frames or 0 for e in report.episodes.values())
+    total_frames = sum(e.n_frames or 0 for e in report.episodes.values())
     dataset_failed = sum(c.failed for c in report.dataset_checks)
     verdict = "OK" if report.ok else "FAILED"
-    lines.append(f"{verdict}: {n_failed} of {len(report.episodes)} episode(s) failed, {frames} frames checked; "
+    lines.append(f"{verdict}: {n_failed} of {len(report.episodes)} episode(s) failed, {total_frames} frames checked; "
                  f"{dataset_failed} dataset check(s) failed")
     return "\n".join(lines)
 

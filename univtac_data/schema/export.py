@@ -10,13 +10,15 @@ import json
 import sys
 from pathlib import Path
 
+from pydantic import BaseModel
+
 from univtac_data.schema.fields import FIELDS, FieldSpec
 from univtac_data.schema.models import DatasetInfo, EpisodeMeta, IndexRow, Manifest
 from univtac_data.schema.sensors import SENSORS
 from univtac_data.storage.encoding import DENSE_CHUNK_FRAMES, SHARD_FRAMES, SMALL_CHUNK_FRAMES, encoding_for
 from univtac_data.version import FORMAT_VERSION
 
-SCHEMA_MODELS = {
+SCHEMA_MODELS: dict[str, type[BaseModel]] = {
     "episode_meta": EpisodeMeta,
     "dataset_info": DatasetInfo,
     "index_row": IndexRow,

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from collections.abc import Iterator
+from typing import Literal
 
 import numpy as np
 
@@ -36,9 +37,9 @@ class Encoding:
 
     chunks: tuple[int, ...]
     shards: tuple[int, ...] | None  # zarr only; None: no sharding
-    blosc_cname: str
+    blosc_cname: Literal["zstd", "lz4", "lz4hc", "blosclz", "zlib"]
     blosc_clevel: int
-    shuffle: str  # "byte" or "bit"
+    shuffle: Literal["byte", "bit"]
     storage_dtype: str  # bool fields are stored as uint8 0/1
 
 
@@ -59,7 +60,7 @@ def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
         shard_t = None  # type: ignore[assignment]
     rest_chunks = tuple(max(1, s) for s in rest)
     shards = None if shard_t is None or shard_t == chunk_t else (shard_t, *rest_chunks)
-    shuffle = "bit" if spec.codec == "depth" else "byte"
+    shuffle: Literal["byte", "bit"] = "bit" if spec.codec == "depth" else "byte"
     return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, shuffle, storage_dtype)
 
 

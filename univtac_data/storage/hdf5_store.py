@@ -11,14 +11,14 @@ import numpy as np
 
 from univtac_data.episode import Episode, meta_json
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import encoded_arrays
+from univtac_data.storage.encoding import Encoding, encoded_arrays
 from univtac_data.storage.errors import CorruptFileError, DatasetError
 from univtac_data.storage.fs import Location, fsync_tree
 
 
-def _blosc(cname: str, clevel: int, shuffle: str) -> hdf5plugin.Blosc:
-    mode = hdf5plugin.Blosc.BITSHUFFLE if shuffle == "bit" else hdf5plugin.Blosc.SHUFFLE
-    return hdf5plugin.Blosc(cname=cname, clevel=clevel, shuffle=mode)
+def _blosc(enc: Encoding) -> hdf5plugin.Blosc:
+    mode = hdf5plugin.Blosc.BITSHUFFLE if enc.shuffle == "bit" else hdf5plugin.Blosc.SHUFFLE
+    return hdf5plugin.Blosc(cname=enc.blosc_cname, clevel=enc.blosc_clevel, shuffle=mode)
 
 
 class HDF5Handle(EpisodeHandle):
@@ -90,7 +90,7 @@ class HDF5Store(EpisodeStore):
             for array_path, data, enc in encoded_arrays(episode):
                 handle.create_dataset(
                     array_path, data=data, chunks=enc.chunks if data.size else None, fletcher32=bool(data.size),
-                    track_times=False, **(_blosc(enc.blosc_cname, enc.blosc_clevel, enc.shuffle) if data.size else {}),
+                    track_times=False, **(_blosc(enc) if data.size else {}),
                 )
             handle.flush()
         fsync_tree(path)

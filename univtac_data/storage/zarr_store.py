@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import zarr
@@ -77,7 +77,7 @@ class ZarrStore(EpisodeStore):
         group.attrs.update({VERSION_ATTR: episode.meta.format_version,
                             META_ATTR: json.loads(episode.meta.model_dump_json())})
         for array_path, data, enc in encoded_arrays(episode):
-            shuffle = "bitshuffle" if enc.shuffle == "bit" else "shuffle"
+            shuffle: Literal["bitshuffle", "shuffle"] = "bitshuffle" if enc.shuffle == "bit" else "shuffle"
             target = group.create_array(
                 name=array_path, shape=data.shape, dtype=data.dtype, chunks=enc.chunks,
                 shards=enc.shards, compressors=[BloscCodec(cname=enc.blosc_cname, clevel=enc.blosc_clevel,

@@ -191,7 +191,7 @@ def plot(results: dict[str, Any], path: Path) -> None:
     m = results["machine"]
     ax.set_xlabel(f"pad samples per second (320 x 240, five targets; {results['config']['workers']} workers, "
                   f"batch {results['config']['batch_size']})")
-    ax.set_title(f"TactileFrameDataset throughput - {m['cpu_model']}, {m['cores']} cores, torch {m['torch']}",
+    ax.set_title(f"TactileFrameDataset throughput - {m['cpu']}, {m['cores']} cores, torch {m['torch']}",
                  fontsize=9)
     ax.set_xlim(0, max(max(rates) * 1.18, 2300))
     fig.tight_layout()

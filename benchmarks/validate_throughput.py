@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -30,16 +29,7 @@ from factories import make_episode  # noqa: E402
 from univtac_data import __version__  # noqa: E402
 from univtac_data.storage import DatasetWriter  # noqa: E402
 from univtac_data.validators import validate  # noqa: E402
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from common import machine as machine_info  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 
 def build(root: Path, storage: str, n_episodes: int, n_frames: int, sensor: str) -> int:
@@ -120,8 +110,7 @@ def main() -> None:
                 })
                 print(f"{storage:5s} workers={workers}: {frames / best:8.1f} frames/s "
                       f"({size / best / 2 ** 20:.1f} MiB/s, best of {args.repeats})", flush=True)
-    machine = {"cpu_model": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
-               "platform": platform.platform(), "load_average_before": load_before,
+    machine = {**machine_info(packages=("numpy", "h5py", "zarr")), "load_average_before": load_before,
                "load_average_after": [round(x, 2) for x in os.getloadavg()]}
     out = {
         "benchmark": "validate_throughput", "univtac_data": __version__, "machine": machine,
@@ -135,7 +124,7 @@ def main() -> None:
     result_path.parent.mkdir(parents=True, exist_ok=True)
     result_path.write_text(json.dumps(out, indent=1) + "\n")
     title = (f"univtac-data validate, {args.episodes} x {args.frames} frames {args.sensor}\n"
-             f"{machine['cpu_model']}, {machine['cores']} cores")
+             f"{machine['cpu']}, {machine['cores']} cores")
     chart(results, ROOT / "docs" / "figures" / "validate_throughput.png", title)
     print(f"wrote {result_path.relative_to(ROOT)} and docs/figures/validate_throughput.png")
 

@@ -127,12 +127,25 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
                          rate_hz=spec.record_rate_hz, object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES)
 
 
+# Sliding the gel has done so far in an episode, mm, past which the script only holds. Slip accumulates and
+# cannot be undone, and one twist or move adds at most about 0.3 mm (a 4 deg twist at the broad dome's ~5 mm
+# contact radius), so episodes stay well inside the validators' 1 mm slip-while-held limit.
+SLIP_BUDGET_MM = 0.3
+
+
+def _slip_so_far_mm(sim: GripperSim) -> float:
+    return max((float(f.tactile[p].slip_mm) for f in sim.frames[-1:] for p in PADS), default=0.0)
+
+
 def _script(sim: GripperSim, rng: np.random.Generator, threshold: float) -> None:
-    """Grasp, then random twists, tilts, moves and holds until the frame budget ends it."""
+    """Grasp, then random twists, tilts, moves and holds until the frame budget ends it; only holds once the
+    episode's slip reaches ``SLIP_BUDGET_MM``."""
     grasp(sim, GraspParams(threshold_mm=threshold))
     twist, tilt_y, tilt_z, shift_y, shift_z = 0.0, 0.0, 0.0, 0.0, 0.0
     while True:
         action = rng.choice(("twist", "tilt", "move", "move", "hold"))
+        if _slip_so_far_mm(sim) >= SLIP_BUDGET_MM:
+            action = "hold"
         if action == "twist":
             angle = _bounded(rng, twist, math.radians(1), math.radians(4), math.radians(6))
             twist += angle

@@ -7,6 +7,7 @@ Tasks and the indenter corpus are scripts of these calls; corrections are script
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,7 +63,7 @@ def _finger_step(params: GraspParams, gap_mm: float, dt_s: float, fast_allowed: 
     return math.copysign(min(params.gain_per_tick * abs(error_m), params.v_slow_m_s * dt_s), error_m)
 
 
-def grip_regulator(params: GraspParams, fast_allowed: bool = False):  # type: ignore[no-untyped-def]
+def grip_regulator(params: GraspParams, fast_allowed: bool = False) -> Callable[[GripperSim], None]:
     """A per-tick controller that keeps each pad's indentation at the threshold (used while holding)."""
 
     def regulate(sim: GripperSim) -> None:

@@ -8,6 +8,7 @@ result is the same dataset an uninterrupted run makes.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import time
@@ -83,8 +84,8 @@ def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: in
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
                     spec = pending.pop(future)
-                    error = future.exception()
-                    yield spec, error if error is not None else future.result()
+                    failure = future.exception()
+                    yield spec, failure if failure is not None else future.result()
         except BaseException:
             for future in pending:
                 future.cancel()
@@ -100,7 +101,7 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
     started_here = not ray.is_initialized()
     if started_here:
         kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
-        ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR", **kwargs)
+        ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, **kwargs)
     try:
         remote = ray.remote(num_cpus=1)(produce_indenter_episode)
         futures = {remote.remote(spec, url, storage): spec for spec in specs}

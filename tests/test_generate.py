@@ -142,3 +142,16 @@ def test_bad_options_and_mismatched_resume_are_refused(tmp_path):
     again = cli("generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "cone", "--episodes-per-shape",
                 "1", "--frames-per-episode", "7", "--workers", "1")
     assert again.returncode == 2 and "frames=5" in again.stderr and "frames=7" in again.stderr
+
+
+def test_generated_episodes_pass_every_validator_rule(tmp_path):
+    from univtac_data.validators import validate
+
+    # the broad dome slides most under a twist; the cross and the dots make several contact patches
+    specs = corpus_specs(["gelsight_mini"], ["curved_surface", "cross", "dots"], 2, frames=60, base_seed=11)
+    summary = run_corpus(str(tmp_path / "ds"), specs, workers=1, progress=False)
+    assert summary.written == 6 and not summary.failed
+    report = validate(tmp_path / "ds")
+    assert report.ok, report.failed_episodes()
+    ds = Dataset.open(tmp_path / "ds")
+    assert max(row.max_slip_mm for row in ds.index.values()) < 1.0

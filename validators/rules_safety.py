@@ -14,16 +14,20 @@ from univtac_data.validators.registry import Skip, collect, frame_finding, rule
 from univtac_data.validators.report import Finding
 
 
-@rule("safety.max_indentation", "safety", threshold="profile.safe_indentation_mm")
-def max_indentation(ctx: EpisodeContext) -> list[Finding]:
-    """The deepest indentation of each frame stays within the sensor's safe_indentation_mm."""
-    limit_mm = ctx.require_profile().safe_indentation_mm
+def depth_over(ctx: EpisodeContext, limit_mm: float, what: str) -> list[Finding]:
+    """Frames whose deepest indentation, on any pad, exceeds ``limit_mm``; ``what`` names the limit."""
     out = []
     for pad in ctx.meta.pads:
         depth_mm = ctx.summary(f"{pad}/depth_max_um") / 1000.0
         out.append(frame_finding(f"tactile/{pad}/depth_um", depth_mm > limit_mm, depth_mm,
-                                 f"deeper than the safe {limit_mm} mm", ctx.config.max_listed_frames, unit="mm"))
+                                 f"deeper than the {what} {limit_mm} mm", ctx.config.max_listed_frames, unit="mm"))
     return collect(out)
+
+
+@rule("safety.max_indentation", "safety", threshold="profile.safe_indentation_mm")
+def max_indentation(ctx: EpisodeContext) -> list[Finding]:
+    """The deepest indentation of each frame stays within the sensor's safe_indentation_mm."""
+    return depth_over(ctx, ctx.require_profile().safe_indentation_mm, "safe limit")
 
 
 def held_frames(ctx: EpisodeContext) -> np.ndarray:

@@ -12,18 +12,13 @@ import numpy as np
 from univtac_data.validators.context import EpisodeContext
 from univtac_data.validators.registry import collect, frame_finding, rule
 from univtac_data.validators.report import Finding
+from univtac_data.validators.rules_safety import depth_over
 
 
 @rule("physics.depth_range", "physics", threshold="profile.gel_thickness_mm")
 def depth_range(ctx: EpisodeContext) -> list[Finding]:
     """Indentation depth lies in [0, gel_thickness_mm] (>= 0 holds by the uint16 dtype)."""
-    limit_mm = ctx.require_profile().gel_thickness_mm
-    out = []
-    for pad in ctx.meta.pads:
-        depth_mm = ctx.summary(f"{pad}/depth_max_um") / 1000.0
-        out.append(frame_finding(f"tactile/{pad}/depth_um", depth_mm > limit_mm, depth_mm,
-                                 f"deeper than the {limit_mm} mm gel", ctx.config.max_listed_frames, unit="mm"))
-    return collect(out)
+    return depth_over(ctx, ctx.require_profile().gel_thickness_mm, "gel thickness")
 
 
 def _no_contact(ctx: EpisodeContext, pad: str) -> np.ndarray:

@@ -21,7 +21,7 @@ from typing import Any
 from tqdm import tqdm
 
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
-from univtac_data.storage import Dataset, DatasetWriter, Location, WrittenEpisode, write_episode_file
+from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.errors import DatasetError
 
 
@@ -47,20 +47,19 @@ def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str) 
     return write_episode_file(Location.parse(url), storage, episode)
 
 
-def _check_same_settings(url: str, specs: list[IndenterEpisodeSpec]) -> None:
-    """Refuse to resume into episodes made with other settings: the dataset would silently mix them."""
-    dataset = Dataset.open(url)
-    by_id = {s.episode_id: s for s in specs}
-    for episode_id in sorted(set(dataset.index) & set(by_id)):
-        with dataset.open_episode(episode_id) as handle:
-            stored = handle.meta.generator.settings
-        wanted = asdict(by_id[episode_id])
-        diff = {k: (stored.get(k), v) for k, v in wanted.items() if stored.get(k) != v}
-        if diff:
-            key, (old, new) = next(iter(diff.items()))
-            raise DatasetError(f"{dataset.loc.url_of(dataset.index[episode_id].path)}: made with {key}={old!r}, "
-                               f"this run asks for {key}={new!r}; rerun with the same options or choose a new --out")
-        return  # one episode tells: every episode of a run shares the settings
+def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]) -> None:
+    """Refuse to resume into episodes made with other settings: the dataset would silently mix them. One
+    episode tells, since every episode of a run shares the settings."""
+    done = [s for s in specs if writer.has(s.episode_id)]
+    if not done:
+        return
+    row = writer.index[done[0].episode_id]
+    with writer.store.open(writer.loc, row.path) as handle:
+        stored = handle.meta.generator.settings
+    for key, wanted in asdict(done[0]).items():
+        if stored.get(key) != wanted:
+            raise DatasetError(f"{writer.loc.url_of(row.path)}: made with {key}={stored.get(key)!r}, "
+                               f"this run asks for {key}={wanted!r}; rerun with the same options or choose a new --out")
 
 
 def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int) \
@@ -122,7 +121,7 @@ def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hd
     """Make every episode of ``specs`` that the dataset at ``url`` lacks."""
     sensors = sorted({s.sensor for s in specs})
     writer = DatasetWriter.open(url, storage=storage, sensors=sensors)
-    _check_same_settings(url, specs)
+    _check_same_settings(writer, specs)
     todo = [s for s in specs if not writer.has(s.episode_id)]
     summary = RunSummary(planned=len(specs), skipped_existing=len(specs) - len(todo))
     if not todo:

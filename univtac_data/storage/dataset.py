@@ -296,19 +296,16 @@ class DatasetWriter:
                 report.removed_temporaries.append(rel)
         on_disk = self._episode_files()
         missing = {eid: rel for eid, rel in on_disk.items() if eid not in self.index}
-        stale = [eid for eid in self.index if eid not in on_disk]
-        for episode_id in stale:
+        stale = {eid: row.path for eid, row in self.index.items() if eid not in on_disk}
+        for episode_id, rel in stale.items():
             del self.index[episode_id]
-            report.skipped.append(f"{self.loc.url_of(self.index_path(episode_id))}: in the index but not on disk")
+            report.skipped.append(f"{self.loc.url_of(rel)}: in the index but not on disk")
+        if stale:
+            self.manifest.files = {k: v for k, v in self.manifest.files.items() if v.episode_id not in stale}
         found = self._scan(missing, report)
         if found or stale or report.removed_temporaries:
-            for stale_id in stale:
-                self.manifest.files = {k: v for k, v in self.manifest.files.items() if v.episode_id != stale_id}
             self.commit(found)
         return report
-
-    def index_path(self, episode_id: str) -> str:
-        return episode_relpath(episode_id, self.store)
 
     @classmethod
     def reindex_dataset(cls, path: str | os.PathLike[str]) -> ReindexReport:

@@ -5,8 +5,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
-
 from univtac_data.generators.tactile import GAP_FAR_MM, gap_field, pad_pose, sensor_grid
+from univtac_data.generators.tactile import gap_primitives as gp
+from univtac_data.generators.tactile.sensor_model import SensorGrid
+
 from univtac_data.schema.sensors import get_sensor
 
 MINI = get_sensor("gelsight_mini")
@@ -104,3 +106,189 @@ def test_unknown_names_are_reported(scene: tuple[mujoco.MjModel, mujoco.MjData])
         pad_pose(model, data, "nope")
     with pytest.raises(KeyError, match="no geom named 'nope'"):
         gap_field(model, data, pad_pose(model, data, "pad"), ["nope"], sensor_grid(MINI, 1))
+
+
+# --- windows and cuts: the fast paths agree with a brute-force evaluation of every cell ----------------------
+
+CUTOFF_MM = 2.0
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, q / np.linalg.norm(q))
+    return mat.reshape(3, 3)
+
+
+def _random_pose(rng: np.random.Generator, grid: SensorGrid) -> tuple[np.ndarray, np.ndarray]:
+    """A rotation and a centre (mm, pad frame) near the cutoff height, some straddling the grid's edge."""
+    x = rng.uniform(grid.x_mm[0] - 4.0, grid.x_mm[-1] + 4.0)
+    y = rng.uniform(grid.y_mm[0] - 4.0, grid.y_mm[-1] + 4.0)
+    return _random_rotation(rng), np.array([x, y, rng.uniform(-2.0, 6.0)])
+
+
+def _inside(extent: tuple[float, float, float, float] | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    if extent is None:
+        return np.zeros(np.broadcast(y[:, None], x[None, :]).shape, bool)
+    return (x[None, :] >= extent[0]) & (x[None, :] <= extent[1]) & (y[:, None] >= extent[2]) & (y[:, None] <= extent[3])
+
+
+PRIMITIVES = {
+    # name: (entry on a grid, extent below z_max), sizes in mm drawn per pose
+    "sphere": (lambda x, y, r, p, s: gp.ellipsoid_entry(x, y, r, p, np.full(3, s[0])),
+               lambda r, p, s, z: gp.ellipsoid_extent(r, p, np.full(3, s[0]), z)),
+    "ellipsoid": (lambda x, y, r, p, s: gp.ellipsoid_entry(x, y, r, p, s),
+                  lambda r, p, s, z: gp.ellipsoid_extent(r, p, s, z)),
+    "box": (lambda x, y, r, p, s: gp.box_entry(x, y, r, p, s), lambda r, p, s, z: gp.box_extent(r, p, s, z)),
+    "cylinder": (lambda x, y, r, p, s: gp.cylinder_entry(x, y, r, p, s[0], s[1]),
+                 lambda r, p, s, z: gp.cylinder_extent(r, p, s[0], s[1], z)),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(PRIMITIVES))
+def test_extents_hold_every_cell_entered_below_the_cut(kind: str) -> None:
+    rng = np.random.default_rng(7)
+    grid = sensor_grid(MINI, 2)
+    entry_of, extent_of = PRIMITIVES[kind]
+    below_seen = 0
+    for _ in range(60):
+        rot, pos = _random_pose(rng, grid)
+        size = rng.uniform(0.5, 4.0, size=3)
+        entry = entry_of(grid.x_mm, grid.y_mm, rot, pos, size)
+        below = entry <= CUTOFF_MM
+        extent = extent_of(rot, pos, size, CUTOFF_MM)
+        assert not np.any(below & ~_inside(extent, grid.x_mm, grid.y_mm))
+        below_seen += int(below.any())
+        if extent is not None and kind in ("sphere", "ellipsoid", "box"):
+            # exact for these: a fine grid over the box finds entries below the cut within a cell of each side
+            fx = np.linspace(extent[0], extent[1], 401)
+            fy = np.linspace(extent[2], extent[3], 401)
+            hit = entry_of(fx, fy, rot, pos, size) <= CUTOFF_MM + 1e-4
+            if hit.any():
+                cols, rows = np.flatnonzero(hit.any(axis=0)), np.flatnonzero(hit.any(axis=1))
+                assert cols[0] <= 1 and cols[-1] >= 399 and rows[0] <= 1 and rows[-1] >= 399
+    assert below_seen > 10  # the poses do exercise the cut
+
+
+def test_capsule_extent_holds_its_cylinder_and_caps() -> None:
+    rng = np.random.default_rng(3)
+    grid = sensor_grid(MINI, 2)
+    for _ in range(60):
+        rot, pos = _random_pose(rng, grid)
+        radius, half = rng.uniform(0.5, 3.0), rng.uniform(0.5, 5.0)
+        entry = gp.capsule_entry(grid.x_mm, grid.y_mm, rot, pos, radius, half)
+        extent = gp.capsule_extent(rot, pos, radius, half, CUTOFF_MM)
+        assert not np.any((entry <= CUTOFF_MM) & ~_inside(extent, grid.x_mm, grid.y_mm))
+
+
+def _reference_raster(x: np.ndarray, y: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Lowest height (ny, nx) mm of triangles ``tri`` (F, 3, 3) over every cell, testing every cell."""
+    out = np.full((y.size, x.size), np.inf)
+    gx, gy = np.meshgrid(x, y)
+    for a, b, c in tri:
+        det = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        if abs(det) <= 1e-12:
+            continue
+        b1 = ((gx - a[0]) * (c[1] - a[1]) - (gy - a[1]) * (c[0] - a[0])) / det
+        b2 = ((b[0] - a[0]) * (gy - a[1]) - (b[1] - a[1]) * (gx - a[0])) / det
+        inside = (b1 >= -1e-9) & (b2 >= -1e-9) & (b1 + b2 <= 1.0 + 1e-9)
+        z = a[2] + b1 * (b[2] - a[2]) + b2 * (c[2] - a[2])
+        out = np.where(inside, np.minimum(out, z), out)
+    return out
+
+
+def test_mesh_scan_below_the_cut_matches_testing_every_cell() -> None:
+    rng = np.random.default_rng(11)
+    grid = sensor_grid(MINI, 2)
+    cube = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    for _ in range(40):
+        rot, pos = _random_pose(rng, grid)
+        verts = cube * rng.uniform(0.5, 5.0, size=3) + rng.normal(scale=0.3, size=cube.shape)  # not a box
+        entry = gp.mesh_entry(grid.x_mm, grid.y_mm, rot, pos, verts, faces, cutoff=CUTOFF_MM)
+        ref = _reference_raster(grid.x_mm, grid.y_mm, gp.mesh_triangles(rot, pos, verts, faces))
+        below = ref <= CUTOFF_MM
+        np.testing.assert_allclose(entry[below], ref[below], rtol=0, atol=1e-9)
+        assert np.all(entry[~below] > CUTOFF_MM)
+        # without a cut the scan covers the whole mesh
+        full = gp.mesh_entry(grid.x_mm, grid.y_mm, rot, pos, verts, faces)
+        np.testing.assert_allclose(full[np.isfinite(ref)], ref[np.isfinite(ref)], rtol=0, atol=1e-9)
+        assert np.all(np.isinf(full[np.isinf(ref)]))
+
+
+def _random_scene(rng: np.random.Generator, grid: SensorGrid) -> tuple[mujoco.MjModel, list[str]]:
+    """One geom of every supported type, plus a mesh, at random poses about the pad (flipped, as above)."""
+    spec = mujoco.MjSpec()
+    verts = rng.normal(size=(12, 3)) * 0.003
+    spec.add_mesh(name="blob", uservert=verts.ravel().tolist())
+    spec.worldbody.add_site(name="pad", pos=[0.001, 0.002, 0.05], euler=[np.pi, 0.0, 0.0])
+    kinds = {
+        "sphere": (mujoco.mjtGeom.mjGEOM_SPHERE, 1), "ellipsoid": (mujoco.mjtGeom.mjGEOM_ELLIPSOID, 3),
+        "box": (mujoco.mjtGeom.mjGEOM_BOX, 3), "cylinder": (mujoco.mjtGeom.mjGEOM_CYLINDER, 2),
+        "capsule": (mujoco.mjtGeom.mjGEOM_CAPSULE, 2), "mesh": (mujoco.mjtGeom.mjGEOM_MESH, 0),
+    }
+    names = []
+    for name, (gtype, nsize) in kinds.items():
+        for k in range(3):
+            rot, pos = _random_pose(rng, grid)
+            quat = np.zeros(4)
+            mujoco.mju_mat2Quat(quat, rot.ravel())
+            # pad frame -> world: the pad is flipped about x and sits at (1, 2, 50) mm
+            world = np.array([pos[0] + 1.0, 2.0 - pos[1], 50.0 - pos[2]]) / 1000.0
+            flip = np.array([0.0, 1.0, 0.0, 0.0])
+            q = np.zeros(4)
+            mujoco.mju_mulQuat(q, flip, quat)
+            size = np.zeros(3)
+            size[:nsize] = rng.uniform(0.5, 4.0, size=nsize) / 1000.0
+            geom = spec.worldbody.add_geom(name=f"{name}{k}", type=gtype, pos=world, quat=q, size=size)
+            if gtype == mujoco.mjtGeom.mjGEOM_MESH:
+                geom.meshname = "blob"
+            names.append(f"{name}{k}")
+    return spec.compile(), names
+
+
+def _brute_force_gap(model: mujoco.MjModel, data: mujoco.MjData, names: list[str], grid: SensorGrid) -> np.ndarray:
+    """The gap with no windows or cuts: every geom's entry on every cell, then the cutoff."""
+    pad = pad_pose(model, data, "pad")
+    gap = np.full(grid.shape, np.inf)
+    x, y = grid.x_mm, grid.y_mm
+    for name in names:
+        g = model.geom(name)
+        rot = pad.rotation.T @ data.geom_xmat[g.id].reshape(3, 3)
+        pos = pad.rotation.T @ (data.geom_xpos[g.id] * 1000.0 - pad.origin_mm)
+        size = model.geom_size[g.id] * 1000.0
+        gtype = model.geom_type[g.id]
+        if gtype == mujoco.mjtGeom.mjGEOM_SPHERE:
+            entry = gp.ellipsoid_entry(x, y, rot, pos, np.full(3, size[0]))
+        elif gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+            entry = gp.ellipsoid_entry(x, y, rot, pos, size)
+        elif gtype == mujoco.mjtGeom.mjGEOM_BOX:
+            entry = gp.box_entry(x, y, rot, pos, size)
+        elif gtype == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            entry = gp.cylinder_entry(x, y, rot, pos, size[0], size[1])
+        elif gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            entry = gp.capsule_entry(x, y, rot, pos, size[0], size[1])
+        else:
+            mid = model.geom_dataid[g.id]
+            va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
+            fa, fn = model.mesh_faceadr[mid], model.mesh_facenum[mid]
+            verts = model.mesh_vert[va : va + vn].astype(np.float64) * 1000.0
+            entry = _reference_raster(x, y, gp.mesh_triangles(rot, pos, verts, model.mesh_face[fa : fa + fn]))
+        gap = np.minimum(gap, entry)
+    return np.where(gap > CUTOFF_MM, GAP_FAR_MM, gap)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_gap_field_matches_brute_force_on_random_scenes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    grid = sensor_grid(MINI, 1)
+    model, names = _random_scene(rng, grid)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    gap = gap_field(model, data, pad_pose(model, data, "pad"), names, grid, cutoff_mm=CUTOFF_MM)
+    ref = _brute_force_gap(model, data, names, grid)
+    near = ref < GAP_FAR_MM
+    assert near.sum() > 1000  # the scene does reach below the cut
+    np.testing.assert_array_equal(gap < GAP_FAR_MM, near)
+    np.testing.assert_allclose(gap[near], ref[near], rtol=0, atol=1e-9)

@@ -18,14 +18,25 @@ when MuJoCo itself registers a contact.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from .contact import GAP_FAR_MM
-from .gap_primitives import box_entry, capsule_entry, cylinder_entry, ellipsoid_entry, mesh_entry
+from .gap_primitives import (
+    SLACK_MM,
+    Extent,
+    box_entry,
+    box_extent,
+    cylinder_entry,
+    cylinder_extent,
+    ellipsoid_entry,
+    ellipsoid_extent,
+    mesh_triangles,
+    triangle_hits,
+)
 from .sensor_model import SensorGrid
 
 __all__ = ["PadPose", "gap_field", "pad_pose"]
@@ -79,42 +90,75 @@ def gap_field(
     ``cutoff_mm`` (and cells with no object) read ``GAP_FAR_MM``.
     """
     gap = np.full(grid.shape, np.inf)
+    # the object's part above the cutoff reads GAP_FAR_MM whatever its height, so each geom is cut there
+    # (with rounding slack) and evaluated only on the cells under what is left
+    z_max = cutoff_mm + SLACK_MM
+    triangles = []
     for geom in geoms:
         gid = _geom_id(model, geom)
-        rot = pad.rotation.T @ data.geom_xmat[gid].reshape(3, 3)
-        pos = pad.rotation.T @ (data.geom_xpos[gid] * M_TO_MM - pad.origin_mm)
-        size = model.geom_size[gid] * M_TO_MM
         gtype = int(model.geom_type[gid])
-        # only the cells under the geom's bounding sphere can see it
+        pos = pad.rotation.T @ (data.geom_xpos[gid] * M_TO_MM - pad.origin_mm)
         rbound = float(model.geom_rbound[gid]) * M_TO_MM
-        if rbound > 0.0:
-            if pos[2] - rbound > cutoff_mm:
-                continue
-            cols = np.flatnonzero(np.abs(grid.x_mm - pos[0]) <= rbound)
-            rows = np.flatnonzero(np.abs(grid.y_mm - pos[1]) <= rbound)
-            if cols.size == 0 or rows.size == 0:
-                continue
-            win = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-        else:
-            win = (slice(None), slice(None))
-        x, y = grid.x_mm[win[1]], grid.y_mm[win[0]]
-        if gtype == mujoco.mjtGeom.mjGEOM_SPHERE:
-            entry = ellipsoid_entry(x, y, rot, pos, np.full(3, size[0]))
-        elif gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-            entry = ellipsoid_entry(x, y, rot, pos, size)
-        elif gtype == mujoco.mjtGeom.mjGEOM_BOX:
-            entry = box_entry(x, y, rot, pos, size)
-        elif gtype == mujoco.mjtGeom.mjGEOM_CYLINDER:
-            entry = cylinder_entry(x, y, rot, pos, size[0], size[1])
-        elif gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
-            entry = capsule_entry(x, y, rot, pos, size[0], size[1])
-        elif gtype == mujoco.mjtGeom.mjGEOM_MESH:
-            mid = int(model.geom_dataid[gid])
-            va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
-            fa, fn = model.mesh_faceadr[mid], model.mesh_facenum[mid]
-            verts = model.mesh_vert[va : va + vn].astype(np.float64) * M_TO_MM
-            entry = mesh_entry(x, y, rot, pos, verts, model.mesh_face[fa : fa + fn], cutoff=cutoff_mm)
-        else:
-            raise ValueError(f"geom {gid} has type {mujoco.mjtGeom(gtype).name}, not supported by the gap field")
-        np.minimum(gap[win], entry, out=gap[win])
+        if rbound > 0.0 and pos[2] - rbound > cutoff_mm:  # the bounding sphere is wholly above: skip early
+            continue
+        rot = pad.rotation.T @ data.geom_xmat[gid].reshape(3, 3)
+        if gtype == mujoco.mjtGeom.mjGEOM_MESH:
+            triangles.append(mesh_triangles(rot, pos, *_mesh_mm(model, gid)))
+            continue
+        for extent, entry_of in _convex_parts(gid, gtype, rot, pos, model.geom_size[gid] * M_TO_MM, z_max):
+            win = _window(grid, extent)
+            if win is not None:
+                np.minimum(gap[win], entry_of(grid.x_mm[win[1]], grid.y_mm[win[0]]), out=gap[win])
+    if triangles:  # all mesh geoms in one scan: the per-call set-up costs more than a small mesh's cells
+        cells, z = triangle_hits(grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
+        np.minimum.at(gap.ravel(), cells, z)
     return np.where(gap > cutoff_mm, GAP_FAR_MM, gap)
+
+
+EntryOf = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _mesh_mm(model: mujoco.MjModel, gid: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) mm in the geom frame and faces (F, 3) of mesh geom ``gid``."""
+    mid = int(model.geom_dataid[gid])
+    va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
+    fa, fn = model.mesh_faceadr[mid], model.mesh_facenum[mid]
+    return model.mesh_vert[va : va + vn].astype(np.float64) * M_TO_MM, model.mesh_face[fa : fa + fn]
+
+
+def _convex_parts(
+    gid: int, gtype: int, rot: np.ndarray, pos: np.ndarray, size: np.ndarray, z_max: float,
+) -> list[tuple[Extent, EntryOf]]:
+    """Convex pieces of primitive geom ``gid`` (pose ``rot``, ``pos`` and MJCF ``size`` in mm, pad frame) that
+    reach below ``z_max`` mm: each piece's xy box there and its entry height as a function of a window's cell
+    centres (x, y). A capsule is its cylinder and two caps, so each is evaluated under its own box only."""
+    if gtype == mujoco.mjtGeom.mjGEOM_SPHERE or gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+        pieces = [_ellipsoid_piece(rot, pos, np.full(3, size[0]) if gtype == mujoco.mjtGeom.mjGEOM_SPHERE else size,
+                                   z_max)]
+    elif gtype == mujoco.mjtGeom.mjGEOM_BOX:
+        extent = box_extent(rot, pos, size, z_max)
+        pieces = [None if extent is None else (extent, lambda x, y: box_entry(x, y, rot, pos, size))]
+    elif gtype == mujoco.mjtGeom.mjGEOM_CYLINDER or gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        radius, half = float(size[0]), float(size[1])
+        extent = cylinder_extent(rot, pos, radius, half, z_max)
+        pieces = [None if extent is None else (extent, lambda x, y: cylinder_entry(x, y, rot, pos, radius, half))]
+        if gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            pieces += [_ellipsoid_piece(rot, pos + rot[:, 2] * s * half, np.full(3, radius), z_max) for s in (-1.0, 1.0)]
+    else:
+        raise ValueError(f"geom {gid} has type {mujoco.mjtGeom(gtype).name}, not supported by the gap field")
+    return [p for p in pieces if p is not None]
+
+
+def _ellipsoid_piece(rot: np.ndarray, pos: np.ndarray, radii: np.ndarray, z_max: float) -> tuple[Extent, EntryOf] | None:
+    extent = ellipsoid_extent(rot, pos, radii, z_max)
+    return None if extent is None else (extent, lambda x, y: ellipsoid_entry(x, y, rot, pos, radii))
+
+
+def _window(grid: SensorGrid, extent: Extent) -> tuple[slice, slice] | None:
+    """(rows, cols) slices of the cells whose centres lie in the xy box ``extent`` mm; None when there are none."""
+    x_lo, x_hi, y_lo, y_hi = extent
+    cols = np.flatnonzero((grid.x_mm >= x_lo) & (grid.x_mm <= x_hi))
+    rows = np.flatnonzero((grid.y_mm >= y_lo) & (grid.y_mm <= y_hi))
+    if cols.size == 0 or rows.size == 0:
+        return None
+    return (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))

@@ -31,6 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
+from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
 from univtac_data.generators.indenters import INDENTER_NAMES  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402
@@ -91,6 +92,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--shapes", default="all", help="'all' (the 14) or a comma-separated list")
     args = parser.parse_args()
+    keep_freed_memory()  # as the generator's workers do (generators/allocator.py)
     shapes = list(INDENTER_NAMES) if args.shapes == "all" else args.shapes.split(",")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

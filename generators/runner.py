@@ -20,6 +20,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.errors import DatasetError
@@ -42,7 +43,8 @@ class RunSummary:
 
 
 def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str) -> WrittenEpisode:
-    """Simulate one episode and write its file (runs in a worker)."""
+    """Simulate one episode and write its file (runs in a worker, which keeps its freed memory)."""
+    keep_freed_memory()
     episode = run_indenter_episode(spec)
     return write_episode_file(Location.parse(url), storage, episode)
 

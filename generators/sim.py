@@ -45,13 +45,28 @@ class SimConfig:
     record_rate_hz: float | None = 60.0  # UniVTAC saves data at 60 Hz; None records nothing (physics only)
     control_period_steps: int = 2  # controller ticks every 2 physics steps (500 Hz at dt = 1 ms)
     contact_method: Literal["geometric", "elastic"] = "geometric"  # tactile contact model
-    # Image pixels per cell of the stick/slip shear solve. 8 px is 0.66 mm on a GelSight Mini, a quarter of
-    # the marker pitch; the solve dominates a frame and costs about 3x more at 4 px.
-    shear_step_px: int = 8
+    # Cell sizes in mm, turned into whole pixels per sensor (``cell_steps``) so that every sensor gets the same
+    # physical resolution: the GF225's pixels are 0.05 mm, the others' 0.085 mm.
+    # Stick/slip shear solve: 0.66 mm is a quarter of the marker pitch (8 px on a GelSight Mini); the solve
+    # dominates a frame and costs about 3x more at half the cell.
+    shear_cell_mm: float = 0.66
+    # Elastic normal solve: 0.17 mm keeps Hertz force within 2 % and contact radius within 4.5 % (2 px on a
+    # GelSight Mini, 3 px on a GF225; benchmarks/results/tactile_speed_vs_accuracy.json).
+    solver_cell_mm: float = 0.17
     max_frames: int | None = None  # stop (FrameBudgetReached) once this many frames are recorded
     # Elastic solver stop: relative change of the pressure. 1e-4 gives the same forces to four digits and
     # depth within the 1 um storage quantum as 1e-6, in two thirds of the time (docs/tactile.md).
     contact_tol: float = 1e-4
+
+
+def cell_steps(profile: SensorProfile, config: SimConfig) -> tuple[int, int]:
+    """(elastic solver step, shear step) in image pixels for ``profile``: the configured cell sizes (mm)
+    rounded to whole pixels, the shear step a whole multiple of the solver step (the shear grid is built
+    by merging solver cells)."""
+    px_mm = 0.5 * (profile.mm_per_px_x + profile.mm_per_px_y)
+    solver = max(1, round(config.solver_cell_mm / px_mm))
+    shear = solver * max(1, round(config.shear_cell_mm / px_mm / solver))
+    return solver, shear
 
 
 @dataclass
@@ -85,9 +100,11 @@ class GripperSim:
         self.primitive = -1
         self.frames: list[RecordedFrame] = []
         self._grid = sensor_grid(profile, 1)
+        solver_step, shear_step = cell_steps(profile, self.config)
         self._tactile = TactileConfig(
-            shear_step=self.config.shear_step_px,
-            contact=ContactConfig(method=self.config.contact_method, tol=self.config.contact_tol),
+            shear_step=shear_step,
+            contact=ContactConfig(method=self.config.contact_method, tol=self.config.contact_tol,
+                                  solver_step=solver_step),
         )
         self._states: dict[str, ContactState | None] = {pad: None for pad in PADS}
         # per pad, while in contact: the object-frame point (m) that sat at the pad centre when the contact

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from univtac_data import Dataset, check_episode, content_hash, get_sensor
+from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.gripper import MIN_OPENING_M, PADS
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, corpus_specs, run_indenter_episode
 from univtac_data.generators.indenter_scene import PAD_SIDE, indenter_geom_names, indenter_scene_xml
@@ -155,3 +156,9 @@ def test_generated_episodes_pass_every_validator_rule(tmp_path):
     assert report.ok, report.failed_episodes()
     ds = Dataset.open(tmp_path / "ds")
     assert max(row.max_slip_mm for row in ds.index.values()) < 1.0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc allocator tuning")
+def test_workers_keep_freed_memory_on_linux():
+    assert keep_freed_memory() is True
+    assert keep_freed_memory() is True  # once per process, then cached

@@ -150,3 +150,23 @@ def test_cylinder_line_contact_is_uniform_along_its_axis() -> None:
 def test_solver_grid_block_mean_keeps_totals() -> None:
     field = np.random.default_rng(0).random((240, 320))
     assert downsample_mean(field, 4, "constant").sum() * 16 == pytest.approx(field.sum())
+
+
+@pytest.mark.parametrize("load_fraction", [0.2, 0.5, 0.8])
+def test_partial_slip_matches_cattaneo_mindlin(load_fraction: float) -> None:
+    """Hertz pressure (a = 2 mm) dragged by Mindlin's displacement for Q = f mu P: the force is f mu P and the
+    stick zone has radius c = a (1 - f)^(1/3) (Johnson, Contact Mechanics, 7.2)."""
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    a, p0, dx, n = 2.0, 0.1, 0.05, 120
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    r2 = (x[None, :] ** 2 + x[:, None] ** 2) / a**2
+    p = np.where(r2 < 1.0, p0 * np.sqrt(np.maximum(1.0 - r2, 0.0)), 0.0)
+    total = float(p.sum()) * dx * dx
+    nu, g = material.poisson_ratio, material.youngs_modulus_mpa / (2.0 * (1.0 + material.poisson_ratio))
+    delta = 3.0 * material.friction * total * (2.0 - nu) / (16.0 * g * a) * (1.0 - (1.0 - load_fraction) ** (2 / 3))
+    result = solve_shear(p, p > 0.0, dx, dx, x, x, material, (delta, 0.0), 0.0, None)
+    assert result.shear_force_n[0] / (material.friction * total) == pytest.approx(load_fraction, abs=0.01)
+    stuck = (p > 0.0) & (np.hypot(*result.traction_mpa) < material.friction * p * (1.0 - 1e-6))
+    c = np.sqrt(np.count_nonzero(stuck) * dx * dx / np.pi)
+    assert c / a == pytest.approx((1.0 - load_fraction) ** (1 / 3), abs=0.02)
+    assert float(result.slip_mm) == 0.0  # partial slip is not gross slip

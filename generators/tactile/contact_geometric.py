@@ -45,11 +45,14 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
         slice(max(cols[0] - grow_c, 0), min(cols[-1] + 1 + grow_c, grid.shape[1])),
     )
     o = overlap[win]
-    d = o
+    # the blur in single precision: depth is stored in whole micrometres, float32 resolves 1e-6 mm at 10 mm
+    o_single = o.astype(np.float32)
+    d = o_single
     for level in range(config.smooth_levels):
         s = sigma / (2.0**level)
-        d = np.maximum(gaussian_filter(d, (s / grid.dy_mm, s / grid.dx_mm), mode="constant", truncate=3.0), o)
+        d = np.maximum(gaussian_filter(d, (s / grid.dy_mm, s / grid.dx_mm), mode="constant", truncate=3.0), o_single)
     depth[win] = d
+    depth[win] = np.maximum(depth[win], o)  # the overlap itself stays exact
     area = float(np.count_nonzero(mask)) * grid.cell_area_mm2
     e_star = material.youngs_modulus_mpa / (1.0 - material.poisson_ratio**2)
     stiffness = 2.0 * e_star / (np.pi * np.sqrt(area / np.pi))

@@ -82,12 +82,31 @@ class KernelSet:
         self.e_star = e_mpa / (1.0 - nu * nu)
         self.g = e_mpa / (2.0 * (1.0 + nu))
         self.nu = nu
-        self.zz = self._spectrum(_corner_sum(_f_inv_r, self._x, self._y, self._a, self._b) / (np.pi * self.e_star))
+        zz_spatial = _corner_sum(_f_inv_r, self._x, self._y, self._a, self._b) / (np.pi * self.e_star)
+        self.zz = self._spectrum(zz_spatial)
+        self._zz_single: np.ndarray | None = None
+        # offsets -(n-1)..(n-1) in order: the response of the field to one cell is a slice of it
+        self.zz_centred = np.fft.fftshift(zz_spatial)[1:, 1:].astype(np.float32)
         self._tangential: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._tangential_single: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._radial: tuple[np.ndarray, np.ndarray] | None = None
 
     def _spectrum(self, k: np.ndarray) -> np.ndarray:
         return sfft.rfft2(k, workers=1)
+
+    @property
+    def zz_single(self) -> np.ndarray:
+        """``zz`` in single precision (complex64): convolving a float32 field with it runs in float32."""
+        if self._zz_single is None:
+            self._zz_single = self.zz.astype(np.complex64)
+        return self._zz_single
+
+    def add_cells(self, field: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
+        """``field`` (ny, nx) += the normal displacement (mm) of pressures ``values`` (MPa) on cells
+        (``rows``, ``cols``): the convolution of a few cells without a transform."""
+        ny, nx = self.shape
+        for r, c, v in zip(rows.tolist(), cols.tolist(), values.tolist(), strict=True):
+            field += np.float32(v) * self.zz_centred[ny - 1 - r : 2 * ny - 1 - r, nx - 1 - c : 2 * nx - 1 - c]
 
     def tangential(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(xx, xy, yy) spectra: traction (MPa) -> in-plane displacement (mm)."""
@@ -104,6 +123,13 @@ class KernelSet:
                 self._spectrum(c * ((1.0 - nu) * f + nu * hyy)),
             )
         return self._tangential
+
+    def tangential_single(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``tangential()`` in single precision (complex64), converted once."""
+        if self._tangential_single is None:
+            self._tangential_single = tuple(k.astype(np.complex64) for k in self.tangential())  # type: ignore[assignment]
+        assert self._tangential_single is not None
+        return self._tangential_single
 
     def radial(self) -> tuple[np.ndarray, np.ndarray]:
         """(rx, ry) spectra: normal pressure (MPa) -> in-plane displacement (mm), toward the load for nu < 0.5."""

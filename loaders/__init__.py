@@ -12,6 +12,7 @@ both storage backends and several datasets at once. See ``docs/loaders.md``.
 
 from univtac_data.loaders.batching import SensorBatchSampler
 from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, select_episodes
+from univtac_data.loaders.frame_batches import FrameBatchLoader
 from univtac_data.loaders.frames import ENCODER_TARGETS, FRAME_FIELDS, TactileFrameConfig, TactileFrameDataset, \
     to_float
 from univtac_data.loaders.normalize import Normalizer
@@ -22,8 +23,8 @@ from univtac_data.loaders.stats import STATS_PATH, FieldStats, compute_stats, lo
 from univtac_data.loaders.transforms import Resize
 
 __all__ = [
-    "ENCODER_TARGETS", "FRAME_FIELDS", "STATS_PATH", "EpisodeReader", "EpisodeRef", "FieldStats", "FrameTable",
-    "Normalizer", "PolicyChunkConfig", "PolicyChunkDataset", "Resize", "SensorBatchSampler", "TactileFrameConfig",
-    "TactileFrameDataset", "Window", "WindowTable", "compute_stats", "load_or_compute_stats", "select_episodes",
-    "split_episode_ids", "split_of", "to_float", "window",
+    "ENCODER_TARGETS", "FRAME_FIELDS", "STATS_PATH", "EpisodeReader", "EpisodeRef", "FieldStats", "FrameBatchLoader",
+    "FrameTable", "Normalizer", "PolicyChunkConfig", "PolicyChunkDataset", "Resize", "SensorBatchSampler",
+    "TactileFrameConfig", "TactileFrameDataset", "Window", "WindowTable", "compute_stats", "load_or_compute_stats",
+    "select_episodes", "split_episode_ids", "split_of", "to_float", "window",
 ]

@@ -20,8 +20,10 @@ import numpy as np
 
 from univtac_data.storage import Dataset
 from univtac_data.storage.backend import EpisodeHandle
+from univtac_data.storage.hdf5_store import HDF5Handle
 from univtac_data.schema.fields import field_for_path
 
+from univtac_data.loaders.chunks import FrameChunks
 from univtac_data.loaders.split import Split, check_split, split_of
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -125,10 +127,46 @@ def is_whole_read(path: str) -> bool:
     return spec is None or spec.codec in ("small", "dense") or spec.sampling == "per_episode"
 
 
+class FrameSource:
+    """One per-frame array of an open episode (an image or depth map), read one frame at a time into a
+    buffer the caller owns. HDF5 frames are decoded straight from their chunk (``chunks.FrameChunks``);
+    anything else, and any chunk that fails a check there, goes through ``EpisodeHandle.read``, which
+    decodes it or raises ``CorruptFileError`` naming the file."""
+
+    def __init__(self, handle: EpisodeHandle, path: str) -> None:
+        self.handle, self.path = handle, path
+        shape, self.dtype = handle.layout(path)   # KeyError when absent (the loader checked paths first)
+        self.frame_shape = shape[1:]               # e.g. (240, 320, 3) for an image
+        self.chunks = _frame_chunks(handle, path)
+
+    def read(self, frame: int) -> np.ndarray:
+        """Frame ``frame`` as a new array of the stored dtype."""
+        out = np.empty(self.frame_shape, self.dtype)
+        self.read_into(frame, out)
+        return out
+
+    def read_into(self, frame: int, out: np.ndarray) -> None:
+        """Frame ``frame`` into ``out``: C-contiguous, the stored frame shape, the stored dtype or one of its
+        size (uint16 micrometres into an int16 buffer keeps the bits)."""
+        if self.chunks is None or not self.chunks.read_frame_into(frame, out):
+            out[...] = self.handle.read(self.path, frame).view(out.dtype)
+
+
+def _frame_chunks(handle: EpisodeHandle, path: str) -> FrameChunks | None:
+    if not isinstance(handle, HDF5Handle):
+        return None
+    try:
+        dataset = handle.h5py_dataset(path)
+    except Exception:  # missing or damaged: handle.read raises the format's error on first use
+        return None
+    return FrameChunks.of(dataset)
+
+
 @dataclass
 class _Open:
     handle: EpisodeHandle
     whole: dict[str, np.ndarray] = field(default_factory=dict)
+    frames: dict[str, FrameSource] = field(default_factory=dict)
 
 
 class EpisodeReader:
@@ -183,6 +221,15 @@ class EpisodeReader:
                 entry.whole[path] = array
             return array[index]
         return entry.handle.read(path, index)
+
+    def frame_source(self, ref: EpisodeRef, path: str) -> FrameSource:
+        """A ``FrameSource`` for per-frame array ``path`` of the episode, valid while its handle stays open
+        (at most ``max_open`` other episodes later)."""
+        entry = self._entry(ref)
+        source = entry.frames.get(path)
+        if source is None:
+            source = entry.frames[path] = FrameSource(entry.handle, path)
+        return source
 
     @property
     def n_open(self) -> int:

@@ -47,7 +47,9 @@ import numpy as np
 import torch
 
 
-from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, PathLike, as_path_list, open_selected, require_paths
+from univtac_data.loaders.buffers import BatchBuffers
+from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, FrameSource, PathLike, as_path_list, open_selected, \
+    require_paths
 from univtac_data.loaders.sampler import FrameTable
 from univtac_data.loaders.split import Split
 
@@ -61,6 +63,9 @@ FRAME_FIELDS: dict[str, str] = {
     "markers_px": "markers_px", "normal_force_n": "normal_force_n", "shear_force_n": "shear_force_n",
     "slip_mm": "slip_mm",
 }
+
+# sample keys whose stored arrays are one chunk per frame, decoded straight into a buffer (chunks.py)
+DECODED_FIELDS: tuple[str, ...] = ("marked_rgb", "pure_rgb", "depth_mm")
 
 Sample = dict[str, Any]
 
@@ -154,30 +159,128 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
         """Sensor profile of sample ``index`` (no I/O; used by ``SensorBatchSampler``)."""
         return self.episodes[int(self.table.episode[index])].sensor
 
-    def read_raw(self, index: int) -> tuple[EpisodeRef, int, str, dict[str, np.ndarray]]:
-        """``(episode, frame, pad, arrays)``: the stored arrays of sample ``index`` before conversion."""
+    def _row(self, index: int) -> tuple[EpisodeRef, int, str]:
         if not -len(self) <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} samples")
         episode, frame, pad = self.table.row(index % len(self))
-        ref = self.episodes[episode]
-        arrays = {}
-        for key in self.config.fields:
-            stored = FRAME_FIELDS[key]
-            path = f"tactile/{pad}/{stored}"
-            arrays[key] = self.reader.read(ref, path) if stored == "markers_ref_px" else self.reader.read(ref, path, frame)
-        return ref, frame, pad, arrays
+        return self.episodes[episode], frame, pad
 
-    def __getitem__(self, index: int) -> Sample:
-        ref, frame, pad, arrays = self.read_raw(index)
+    def read_raw(self, index: int) -> tuple[EpisodeRef, int, str, dict[str, np.ndarray]]:
+        """``(episode, frame, pad, arrays)``: the stored arrays of sample ``index`` before conversion."""
+        ref, frame, pad = self._row(index)
+        return ref, frame, pad, read_fields(self.reader, ref, frame, pad, self.config.fields)
+
+    def read_batch(self, indices: Sequence[int], reader: EpisodeReader | None = None,
+                   buffers: BatchBuffers | None = None) -> Sample:
+        """Samples ``indices`` as one batch: exactly ``default_collate([self[i] for i in indices])``, but images
+        and depth are decoded straight into the batch tensors (no per-sample tensors, no stacking copy).
+
+        Inside a DataLoader worker the batch tensors are allocated in shared memory, as ``default_collate``
+        does, so sending the batch copies nothing. ``reader``: the ``EpisodeReader`` to read through (one
+        per thread; ``FrameBatchLoader`` passes its own); default ``self.reader``. With a ``transform``, or
+        samples of several sensors, this is ``default_collate`` of single samples. ``buffers``: where the
+        image and depth tensors go (``FrameBatchLoader`` reuses memory this way); default new tensors.
+        """
+        reader = self.reader if reader is None else reader
+        rows = [self._row(int(i)) for i in indices]
+        if self.transform is not None or len({ref.sensor for ref, _, _ in rows}) != 1:
+            return torch.utils.data.default_collate([self._sample(int(i), reader) for i in indices])
+        profile = self._sizes[rows[0][0].sensor]
+        width, height = profile.image_width_px, profile.image_height_px
+        convert = convert_compact if self.config.compact else convert_target
+        batch: Sample = {}
+        for key in self.config.fields:
+            path = FRAME_FIELDS[key]
+            if key in DECODED_FIELDS:
+                sources = [(reader.frame_source(ref, f"tactile/{pad}/{path}"), frame) for ref, frame, pad in rows]
+                name, batch[name] = decode_batch(key, sources, self.config.compact, buffers)
+            else:
+                samples = [convert(key, value, width, height) for value in
+                           (read_fields(reader, ref, frame, pad, (key,))[key] for ref, frame, pad in rows)]
+                batch[key] = torch.stack([tensor for _, tensor in samples])
+        batch.update(sensor=[ref.sensor for ref, _, _ in rows], pad=[pad for _, _, pad in rows],
+                     episode_id=[ref.episode_id for ref, _, _ in rows], name=[ref.name for ref, _, _ in rows],
+                     frame=torch.tensor([frame for _, frame, _ in rows]),
+                     dataset=torch.tensor([ref.dataset for ref, _, _ in rows]))
+        return batch
+
+    def __getitem__(self, index: int | Sequence[int]) -> Sample:
+        if isinstance(index, (list, tuple, range, np.ndarray)):
+            return self.read_batch(index)   # a list from a batch sampler: DataLoader(batch_size=None, ...)
+        return self._sample(index, self.reader)
+
+    def _sample(self, index: int, reader: EpisodeReader) -> Sample:
+        ref, frame, pad = self._row(index)
         profile = self._sizes[ref.sensor]
         convert = convert_compact if self.config.compact else convert_target
         sample: Sample = {}
-        for key, value in arrays.items():
+        for key, value in read_fields(reader, ref, frame, pad, self.config.fields).items():
             name, tensor = convert(key, value, profile.image_width_px, profile.image_height_px)
             sample[name] = tensor
         sample.update(sensor=ref.sensor, pad=pad, episode_id=ref.episode_id, name=ref.name, frame=frame,
                       dataset=ref.dataset)
         return self.transform(sample) if self.transform is not None else sample
+
+
+def read_fields(reader: EpisodeReader, ref: EpisodeRef, frame: int, pad: str, fields: Sequence[str]) \
+        -> dict[str, np.ndarray]:
+    """The stored arrays of one (frame, pad) for sample keys ``fields``, before conversion."""
+    arrays = {}
+    for key in fields:
+        path = f"tactile/{pad}/{FRAME_FIELDS[key]}"
+        if key in DECODED_FIELDS:
+            arrays[key] = reader.frame_source(ref, path).read(frame)
+        elif key == "markers_ref":
+            arrays[key] = reader.read(ref, path)
+        else:
+            arrays[key] = reader.read(ref, path, frame)
+    return arrays
+
+
+def decode_batch(key: str, sources: Sequence[tuple[FrameSource, int]], compact: bool,
+                 buffers: BatchBuffers | None = None) -> tuple[str, torch.Tensor]:
+    """``(sample key, (B, C, H, W) tensor)`` for an image or depth key, each ``(source, frame)`` decoded into
+    its slot; values exactly those of ``convert_target`` / ``convert_compact`` on the frame."""
+    first = sources[0][0]
+    if key in ("marked_rgb", "pure_rgb"):
+        height, width, _ = first.frame_shape
+        out = batch_tensor((len(sources), 3, height, width), torch.uint8 if compact else torch.float32, buffers)
+        chw = out.numpy()   # numpy copies run in this thread; torch's may spin OpenMP threads on a busy machine
+        scratch = np.empty(first.frame_shape, np.uint8)   # (H, W, 3) as stored; reused for every frame
+        for k, (source, frame) in enumerate(sources):
+            source.read_into(frame, scratch)
+            if compact:
+                np.copyto(chw[k], scratch.transpose(2, 0, 1))
+            else:   # float32(value) * float32(1 / 255), as image_chw computes it
+                np.multiply(scratch.transpose(2, 0, 1), np.float32(1.0 / 255.0), out=chw[k], dtype=np.float32)
+        return key, out
+    height, width = first.frame_shape
+    if compact:
+        out = batch_tensor((len(sources), 1, height, width), torch.int16, buffers)
+        for k, (source, frame) in enumerate(sources):
+            source.read_into(frame, out[k, 0].numpy())   # uint16 um bits; above 32767 they read negative
+        if bool((out.numpy() < 0).any()):
+            depth_max = int(out.numpy().view(np.uint16).max())
+            raise ValueError(f"depth {depth_max} um exceeds the compact int16 range ({DEPTH_UM_MAX} um); "
+                             "use compact=False")
+        return "depth_um", out
+    out = batch_tensor((len(sources), 1, height, width), torch.float32, buffers)
+    scratch_um = np.empty(first.frame_shape, first.dtype)
+    for k, (source, frame) in enumerate(sources):
+        source.read_into(frame, scratch_um)
+        np.multiply(scratch_um, np.float32(1e-3), out=out[k, 0].numpy(), dtype=np.float32)
+    return key, out
+
+
+def batch_tensor(shape: tuple[int, ...], dtype: torch.dtype, buffers: BatchBuffers | None = None) -> torch.Tensor:
+    """An uninitialised tensor for a batch: from ``buffers`` when given; in shared memory inside a
+    DataLoader worker (what ``default_collate`` does there), so that sending it copies nothing."""
+    if buffers is not None:
+        return buffers.empty(shape, dtype)
+    if torch.utils.data.get_worker_info() is None:
+        return torch.empty(shape, dtype=dtype)
+    nbytes = int(np.prod(shape)) * torch.empty((), dtype=dtype).element_size()
+    return torch.empty(0, dtype=dtype).set_(torch.UntypedStorage._new_shared(nbytes), 0, shape)
 
 
 def image_chw(rgb: np.ndarray) -> torch.Tensor:

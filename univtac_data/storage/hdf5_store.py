@@ -57,6 +57,12 @@ class HDF5Handle(EpisodeHandle):
     def _read_raw(self, path: str, index: Any) -> np.ndarray:
         return self._dataset(path)[index]
 
+    def h5py_dataset(self, path: str) -> h5py.Dataset:
+        """The open ``h5py.Dataset`` of an array path (cached), for readers that decode chunks themselves
+        (``univtac_data.loaders`` reads image chunks straight into batch buffers). Raises ``KeyError`` when
+        the path is not an array of this episode."""
+        return self._dataset(path)
+
     def _dataset(self, path: str) -> h5py.Dataset:
         dataset = self._datasets.get(path)
         if dataset is None:

@@ -3,7 +3,7 @@
     python benchmarks/codecs.py [--frames 20]    # GelSight Mini, all 14 indenters, both pads
 
 One frame per chunk with Fletcher-32, as the format stores them; CPU time of one process. Writes
-benchmarks/results/codecs.json. The spec's encoding choice (LZ4 level 9 for images) quotes it.
+benchmarks/results/codecs.json. The spec's encoding choice (Zstandard level 1) quotes it.
 """
 
 from __future__ import annotations

@@ -4,12 +4,10 @@ Why these choices (the spec's 'Encoding' section says the same):
 
 * images and depth are chunked one frame per chunk: a loader reads a single frame without decoding its
   neighbours (ManiSkill and LeRobot users trip over whole-trajectory chunks and video decoding);
-* Blosc is lossless and available to HDF5 (hdf5plugin) and Zarr alike, and every Blosc chunk names its
-  codec, so readers decode any of them. RGB images use LZ4 (level 9): on generated frames it decodes in 40 %
-  of the time of Zstandard level 1 and compresses in half of it, for about 45 % more image bytes
-  (benchmarks/codecs.py); training reads every image many times, and the decode was the loaders' floor.
-  Everything else uses Zstandard level 1, which compresses in half the time of level 3 for about 15 % more
-  bytes;
+* Blosc with Zstandard is lossless, fast to decode and available to HDF5 (hdf5plugin) and Zarr alike; level 1
+  compresses in half the time of level 3 for about 15 % more bytes (benchmarks/codecs.py), and generation
+  writes every frame once. LZ4 would halve both write and decode time but makes images 45 % larger, which
+  pushes elastic-contact frames over the size budget (spec/format.md, section 9);
 * depth is integer micrometres with bit-shuffle: the mostly-zero maps compress to a few hundred bytes;
 * every chunk carries a checksum (HDF5 Fletcher-32, Zarr CRC32C) so flipped bytes are found on read;
 * Zarr shards group up to ``SHARD_FRAMES`` frames into one object: few files on object stores, while the
@@ -32,7 +30,6 @@ SHARD_FRAMES = 128
 DENSE_CHUNK_FRAMES = 64
 SMALL_CHUNK_FRAMES = 4096
 ZSTD_LEVEL = 1
-IMAGE_LZ4_LEVEL = 9  # Blosc's LZ4 level sets its block size: 9 is the smallest output at the same speed
 
 
 @dataclass(frozen=True)
@@ -65,8 +62,6 @@ def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
     rest_chunks = tuple(max(1, s) for s in rest)
     shards = None if shard_t is None or shard_t == chunk_t else (shard_t, *rest_chunks)
     shuffle: Literal["byte", "bit"] = "bit" if spec.codec == "depth" else "byte"
-    if spec.codec == "image":
-        return Encoding((chunk_t, *rest_chunks), shards, "lz4", IMAGE_LZ4_LEVEL, shuffle, storage_dtype)
     return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, shuffle, storage_dtype)
 
 

@@ -202,25 +202,25 @@ def solve_shear(
         limit_cell = mu * p
         sliding = np.zeros(p.shape, dtype=bool)
         q_slip = np.zeros_like(q)
-        rounds, loose, tight = 0, True, False
-        while rounds < slip_rounds:
+        rounds, solved_loose = 0, False
+        while True:
             mag = np.hypot(q[0], q[1])
             over = cells & ~sliding & (mag > limit_cell * (1.0 + 1e-9))
-            if not over.any():
-                if not loose or tight:
-                    break
-                loose = False  # the slip set is settled at the loose tolerance: converge it once
-            else:
+            if over.any() and rounds < slip_rounds:
                 sliding |= over
                 rounds += 1
                 with np.errstate(invalid="ignore", divide="ignore"):
                     unit = np.where(mag > 0.0, q / np.where(mag > 0.0, mag, 1.0), 0.0)
                 q_slip = np.where(sliding, limit_cell * unit, q_slip)
-            tight = not loose
+                tol = SLIP_ROUND_TOLERANCE
+            elif solved_loose:
+                tol = CG_TOLERANCE  # the slip set has settled (or the rounds are spent): converge it once
+            else:
+                break
             stick = cells & ~sliding
             # the previous round's stuck tractions are a close guess: only the cells that just began to slide moved
-            tol = SLIP_ROUND_TOLERANCE if loose else CG_TOLERANCE
             q = q_slip + (_cg(op, stick, target - op(q_slip), tol=tol, start=q - q_slip) if stick.any() else 0.0)
+            solved_loose = tol == SLIP_ROUND_TOLERANCE
         q = np.where(cells, q, 0.0)
 
     traction = np.zeros((2, *shape))

@@ -7,8 +7,10 @@ real scenes.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import torch
 
 from univtac_data import CameraInfo, Episode, EpisodeMeta, GeneratorInfo, SafetySummary, get_sensor
 from univtac_data.storage import DatasetWriter
@@ -102,3 +104,20 @@ if __name__ == "__main__":
 
     out = make_dataset(sys.argv[1], sys.argv[2] if len(sys.argv) > 2 else "hdf5", 4, n_frames=30, cameras=("head",))
     print(f"wrote a synthetic 4-episode dataset to {out}")
+
+
+def assert_same(a: Any, b: Any) -> None:
+    """Equal keys, types, dtypes, shapes and values, bit for bit."""
+    assert type(a) is type(b)
+    if isinstance(a, dict):
+        assert list(a) == list(b)
+        for key in a:
+            assert_same(a[key], b[key])
+    elif isinstance(a, torch.Tensor):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.is_contiguous() and torch.equal(a, b)
+    elif isinstance(a, list):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            assert_same(x, y)
+    else:
+        assert a == b

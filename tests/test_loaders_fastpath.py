@@ -11,7 +11,7 @@ import hdf5plugin  # noqa: F401  (the Blosc filter, for the straightforward read
 import numpy as np
 import pytest
 import torch
-from factories import make_dataset
+from factories import assert_same, make_dataset
 
 from univtac_data.loaders import FRAME_FIELDS, FrameBatchLoader, TactileFrameDataset
 from univtac_data.loaders.buffers import BatchBuffers
@@ -26,23 +26,6 @@ ALL_FIELDS = tuple(FRAME_FIELDS)
 @pytest.fixture(scope="module", params=["hdf5", "zarr"])
 def root(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_dataset(tmp_path_factory.mktemp(request.param) / "d", request.param, 2, n_frames=5)
-
-
-def assert_same(a: Any, b: Any) -> None:
-    """Equal keys, types, dtypes, shapes and values, bit for bit."""
-    assert type(a) is type(b)
-    if isinstance(a, dict):
-        assert list(a) == list(b)
-        for key in a:
-            assert_same(a[key], b[key])
-    elif isinstance(a, torch.Tensor):
-        assert a.dtype == b.dtype and a.shape == b.shape and a.is_contiguous() and torch.equal(a, b)
-    elif isinstance(a, list):
-        assert len(a) == len(b)
-        for x, y in zip(a, b):
-            assert_same(x, y)
-    else:
-        assert a == b
 
 
 def straightforward_sample(root: Path, ds: TactileFrameDataset, index: int) -> dict[str, Any]:

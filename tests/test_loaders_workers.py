@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 import torch
-from factories import make_dataset
+from factories import assert_same, make_dataset
 
 from univtac_data.loaders import PolicyChunkDataset, TactileFrameDataset
 
@@ -22,21 +22,6 @@ def root(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
 def batches(dataset: torch.utils.data.Dataset[Any], workers: int) -> list[dict[str, Any]]:
     loader = torch.utils.data.DataLoader(dataset, batch_size=5, shuffle=False, num_workers=workers)
     return list(loader)
-
-
-def assert_same(a: Any, b: Any) -> None:
-    if isinstance(a, dict):
-        assert a.keys() == b.keys()
-        for key in a:
-            assert_same(a[key], b[key])
-    elif isinstance(a, torch.Tensor):
-        torch.testing.assert_close(a, b, rtol=0, atol=0)
-    elif isinstance(a, list):
-        assert len(a) == len(b)
-        for x, y in zip(a, b):
-            assert_same(x, y)
-    else:
-        assert a == b
 
 
 class WorkerPids(torch.utils.data.Dataset[int]):

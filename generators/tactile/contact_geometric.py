@@ -51,8 +51,7 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
     for level in range(config.smooth_levels):
         s = sigma / (2.0**level)
         d = np.maximum(gaussian_filter(d, (s / grid.dy_mm, s / grid.dx_mm), mode="constant", truncate=3.0), o_single)
-    depth[win] = d
-    depth[win] = np.maximum(depth[win], o)  # the overlap itself stays exact
+    depth[win] = np.maximum(d, o)  # the overlap itself stays exact (float64)
     area = float(np.count_nonzero(mask)) * grid.cell_area_mm2
     e_star = material.youngs_modulus_mpa / (1.0 - material.poisson_ratio**2)
     stiffness = 2.0 * e_star / (np.pi * np.sqrt(area / np.pi))

@@ -15,13 +15,16 @@ hits all of them alike) for:
 * ``ours_compact_hdf5_batched``: the same workers, each fetching a whole batch with
   ``read_batch`` (``DataLoader(batch_size=None, sampler=BatchSampler(...))``);
 * ``ours_compact_threads`` (the fast path): ``FrameBatchLoader`` with ``--workers`` decoding threads in
-  the training process, and ``+to_float_cpu``: the same with ``to_float(batch)`` in the timed loop;
+  the training process, on a ``channels_last=True`` dataset (images decoded straight into their batch
+  slot); ``_contiguous``: the same with contiguous (B, 3, H, W) images, one HWC -> CHW copy per image;
+  ``+to_float_cpu``: the fast path with ``to_float(batch)`` in the timed loop; ``ours_float_threads``:
+  float32 targets from the threads (channels-last too);
 * ``ours_*_zarr``: the Zarr copy; and a ``ceiling`` of DataLoader workers that read nothing and return
   zero tensors of the same shapes (the cost of moving samples between processes alone).
 
 Each configuration also records the CPU time of the whole process tree (training process and workers)
 per sample: on a dedicated machine ``cores / cpu_ms_per_sample`` bounds its rate, whatever the load.
-Then times the stages of one batch read in one thread (chunk read, checksum, Blosc decode, layout copy)
+Then times the stages of one batch read in one thread (chunk read, checksum, Blosc decode, the rest)
 and the cost of the shared memory a worker process writes a batch into. Writes
 ``benchmarks/results/loader_throughput.json`` and ``docs/figures/loader_throughput.png``.
 
@@ -53,7 +56,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from factories import make_dataset  # noqa: E402
 
 from univtac_data.loaders import ENCODER_TARGETS, FrameBatchLoader, TactileFrameDataset, to_float  # noqa: E402
-from univtac_data.loaders.chunks import fletcher32  # noqa: E402
+from univtac_data.loaders.chunks import checksum_matches  # noqa: E402
 from univtac_data.loaders.frames import FRAME_FIELDS, convert_target  # noqa: E402
 from univtac_data.storage import Dataset  # noqa: E402
 from common import machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
@@ -158,6 +161,11 @@ class TimedLoader:
                 "cpu_ms_per_sample": float(np.median(self.cpu_ms))}
 
 
+def fast_dataset(root: str) -> TactileFrameDataset:
+    """The fast path's dataset: compact samples, images channels-last (decoded straight into the batch)."""
+    return TactileFrameDataset(root, compact=True, channels_last=True)
+
+
 def data_loader(dataset: torch.utils.data.Dataset[Any], workers: int, batch_size: int, batched: bool = False) \
         -> torch.utils.data.DataLoader[Any]:
     """A shuffled DataLoader with persistent workers; ``batched``: the dataset reads whole batches."""
@@ -187,8 +195,10 @@ def tree_cpu_s() -> float:
 
 
 def stage_times(dataset: TactileFrameDataset, batches: int, batch_size: int) -> dict[str, float]:
-    """Milliseconds per compact sample of each stage of ``read_batch`` in one thread: the whole read, then
-    the chunk reads, Fletcher-32 and Blosc decode of the three image/depth arrays alone (best of 3)."""
+    """Milliseconds per sample of each stage of ``dataset.read_batch`` in one thread: the whole read, then the
+    chunk reads (and, for comparison, h5py's ``read_direct_chunk``), Fletcher-32 and Blosc decode of the three
+    image/depth arrays alone (best of 3); the rest is Python, markers and pose, and (without ``channels_last``)
+    the HWC -> CHW copies."""
     order = np.random.default_rng(0).permutation(len(dataset))[:batches * batch_size]
     parts = [order[k:k + batch_size] for k in range(0, len(order), batch_size)]
     dataset.read_batch(parts[0])  # open the episodes
@@ -198,19 +208,21 @@ def stage_times(dataset: TactileFrameDataset, batches: int, batch_size: int) -> 
         ref, frame, pad = dataset._row(int(index))
         for path in paths:
             sources.append((dataset.reader.frame_source(ref, path.format(pad=pad)).chunks, frame))
-    raw = [(c.dataset.id.read_direct_chunk((t,) + (0,) * len(c.frame_shape))[1], c.frame_nbytes) for c, t in sources]
+    raw = [(c.stored_chunk(t), c.frame_nbytes) for c, t in sources]
     scratch = np.empty(max(n for _, n in raw), np.uint8)
     stages = {
         "read_batch_total": lambda: [dataset.read_batch(p) for p in parts],
-        "chunk_read_hdf5": lambda: [c.dataset.id.read_direct_chunk((t,) + (0,) * len(c.frame_shape)) for c, t in sources],
-        "fletcher32": lambda: [fletcher32(memoryview(b)[:-4]) for b, _ in raw],
+        "chunk_read": lambda: [c.stored_chunk(t) for c, t in sources],   # os.pread at the chunk index's places
+        "chunk_read_h5py": lambda: [c.dataset.id.read_direct_chunk((t,) + (0,) * len(c.frame_shape)) for c, t in sources],
+        "fletcher32": lambda: [checksum_matches(b) for b, _ in raw],
         "blosc_decode": lambda: [blosc.decompress(memoryview(b)[:-4], scratch[:n]) for b, n in raw],
     }
     out = {}
     for name, run in stages.items():
         best = min(timed(run) for _ in range(3))
         out[name] = 1e3 * best / len(order)
-    out["layout_copies_and_rest"] = out["read_batch_total"] - sum(v for k, v in out.items() if k != "read_batch_total")
+    stages_of_the_read = ("chunk_read", "fletcher32", "blosc_decode")   # chunk_read_h5py is only a comparison
+    out["rest"] = out["read_batch_total"] - sum(out[k] for k in stages_of_the_read)
     return out
 
 
@@ -297,14 +309,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "ours_compact_hdf5": lambda: TimedLoader(data_loader(TactileFrameDataset(roots["hdf5"], compact=True), w, b)),
             "ours_compact_hdf5_batched": lambda: TimedLoader(data_loader(TactileFrameDataset(roots["hdf5"], compact=True),
                                                                          w, b, batched=True)),
-            "ours_compact_threads": lambda: TimedLoader(FrameBatchLoader(TactileFrameDataset(roots["hdf5"], compact=True),
-                                                                         b, threads=w)),
+            "ours_compact_threads": lambda: TimedLoader(FrameBatchLoader(fast_dataset(roots["hdf5"]), b, threads=w)),
+            "ours_compact_threads_contiguous": lambda: TimedLoader(FrameBatchLoader(
+                TactileFrameDataset(roots["hdf5"], compact=True), b, threads=w)),
             "ours_compact_threads+to_float_cpu": lambda: TimedLoader(FrameBatchLoader(
-                TactileFrameDataset(roots["hdf5"], compact=True), b, threads=w), post=to_float),
-            "ours_float_threads": lambda: TimedLoader(FrameBatchLoader(TactileFrameDataset(roots["hdf5"]), b, threads=w)),
+                fast_dataset(roots["hdf5"]), b, threads=w), post=to_float),
+            "ours_float_threads": lambda: TimedLoader(FrameBatchLoader(
+                TactileFrameDataset(roots["hdf5"], channels_last=True), b, threads=w)),
             "ours_compact_zarr": lambda: TimedLoader(data_loader(TactileFrameDataset(roots["zarr"], compact=True), w, b)),
-            "ours_compact_threads_zarr": lambda: TimedLoader(FrameBatchLoader(
-                TactileFrameDataset(roots["zarr"], compact=True), b, threads=w)),
+            "ours_compact_threads_zarr": lambda: TimedLoader(FrameBatchLoader(fast_dataset(roots["zarr"]), b, threads=w)),
             "ceiling_float_no_io": lambda: TimedLoader(data_loader(ZeroSamples(n, compact=False), w, b)),
             "ceiling_compact_no_io": lambda: TimedLoader(data_loader(ZeroSamples(n, compact=True), w, b)),
         }
@@ -318,7 +331,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             loads.append(os.getloadavg()[0])
         runs: dict[str, dict[str, Any]] = {name: loader.result() for name, loader in loaders.items()}
         del loaders
-        stages = stage_times(TactileFrameDataset(roots["hdf5"], compact=True), args.profile_batches, b)
+        stages = {"channels_last": stage_times(fast_dataset(roots["hdf5"]), args.profile_batches, b),
+                  "contiguous": stage_times(TactileFrameDataset(roots["hdf5"], compact=True), args.profile_batches, b)}
         load_after = os.getloadavg()
     sample_bytes = 2 * 3 * 240 * 320 + 2 * 240 * 320
     transfer = shared_memory_ms_per_sample(b, sample_bytes)
@@ -345,7 +359,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     plot(results, args.figure)
-    print("stages (ms/sample, one thread):", json.dumps({k: round(v, 3) for k, v in stages.items()}))
+    for layout, times in stages.items():
+        print(f"stages, {layout} (ms/sample, one thread):", json.dumps({k: round(v, 3) for k, v in times.items()}))
     print("batch memory (ms/sample):", json.dumps({k: round(v, 3) for k, v in transfer.items()}))
     print(f"fast path/naive = {fast / base:.2f}x; wrote {args.out} and {args.figure}")
     return results

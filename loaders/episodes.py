@@ -2,17 +2,18 @@
 
 ``select_episodes`` turns dataset paths and filters into a list of ``EpisodeRef`` (plain, picklable
 records). ``EpisodeReader`` owns the open episode handles of the *current process*: it opens lazily on
-first read, keeps at most ``max_open`` open (least recently used closed first), drops what it holds when
-pickled, and forgets handles it finds after a fork. So no h5py or zarr handle crosses a process boundary
-(h5py handles inherited across fork give corrupt reads: pytorch #11887), and a long run's memory stays
-bounded (openvla #39).
+first read, keeps at most ``max_open`` open (least recently used closed first; none while a batch read is
+``holding`` them), drops what it holds when pickled, and forgets handles it finds after a fork. So no h5py
+or zarr handle crosses a process boundary (h5py handles inherited across fork give corrupt reads: pytorch
+#11887), and a long run's memory stays bounded (openvla #39).
 """
 
 from __future__ import annotations
 
 import os
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Union
 
@@ -183,11 +184,13 @@ class EpisodeReader:
         self.max_open = max_open
         self._open: OrderedDict[tuple[int, str], _Open] = OrderedDict()
         self._pid = os.getpid()
+        self._holds = 0  # nested ``holding()`` blocks: while > 0 no handle is closed
         self.opens = 0  # handles opened by this process since creation; for tests and profiling
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_open"] = OrderedDict()
+        state["_holds"] = 0
         return state
 
     def _entry(self, ref: EpisodeRef) -> _Open:
@@ -205,10 +208,27 @@ class EpisodeReader:
         entry = _Open(self.datasets[ref.dataset].open_episode(ref.episode_id))
         self.opens += 1
         self._open[key] = entry
+        if not self._holds:
+            self._close_least_recent()
+        return entry
+
+    def _close_least_recent(self) -> None:
         while len(self._open) > self.max_open:
             _, oldest = self._open.popitem(last=False)
             oldest.handle.close()
-        return entry
+
+    @contextmanager
+    def holding(self) -> Iterator[None]:
+        """Within the block no handle is closed, so every ``FrameSource`` taken from this reader stays valid,
+        even when a batch spans more than ``max_open`` episodes (each is opened once per batch, not once per
+        array); on exit the least recently used are closed down to ``max_open`` again."""
+        self._holds += 1
+        try:
+            yield
+        finally:
+            self._holds -= 1
+            if not self._holds:
+                self._close_least_recent()
 
     def read(self, ref: EpisodeRef, path: str, index: Any = ()) -> np.ndarray:
         """``path[index]`` of the episode in its logical dtype (see ``EpisodeHandle.read``). Paths for which

@@ -106,18 +106,29 @@ if __name__ == "__main__":
     print(f"wrote a synthetic 4-episode dataset to {out}")
 
 
-def assert_same(a: Any, b: Any) -> None:
-    """Equal keys, types, dtypes, shapes and values, bit for bit."""
+IMAGE_KEYS = ("marked_rgb", "pure_rgb")
+
+
+def has_hwc_memory(image: torch.Tensor) -> bool:
+    """Whether a (..., 3, H, W) image is a view of contiguous (..., H, W, 3) memory (``torch.channels_last``)."""
+    return image.movedim(-3, -1).is_contiguous()
+
+
+def assert_same(a: Any, b: Any, *, channels_last: bool = False, key: str = "") -> None:
+    """Equal keys, types, dtypes, shapes and values, bit for bit. Every tensor of ``a`` is contiguous, except
+    images (``marked_rgb``, ``pure_rgb``) with ``channels_last``: views of HWC memory instead."""
     assert type(a) is type(b)
     if isinstance(a, dict):
         assert list(a) == list(b)
-        for key in a:
-            assert_same(a[key], b[key])
+        for k in a:
+            assert_same(a[k], b[k], channels_last=channels_last, key=k)
     elif isinstance(a, torch.Tensor):
-        assert a.dtype == b.dtype and a.shape == b.shape and a.is_contiguous() and torch.equal(a, b)
+        assert a.dtype == b.dtype and a.shape == b.shape and torch.equal(a, b), key
+        hwc = channels_last and key in IMAGE_KEYS
+        assert has_hwc_memory(a) if hwc else a.is_contiguous(), (key, tuple(a.shape), a.stride())
     elif isinstance(a, list):
         assert len(a) == len(b)
         for x, y in zip(a, b):
-            assert_same(x, y)
+            assert_same(x, y, channels_last=channels_last, key=key)
     else:
         assert a == b

@@ -203,6 +203,8 @@ def test_fields_and_pads_selection(hdf5_root: Path) -> None:
     torch.testing.assert_close(sample["contact_mask"], sample["depth_mm"] > 0)
     with pytest.raises(ValueError, match="fields must be a non-empty subset"):
         TactileFrameDataset(hdf5_root, fields=["rgb"])
+    with pytest.raises(TypeError, match=r"channels_last must be a bool \(got 'no'\)"):
+        TactileFrameDataset(hdf5_root, channels_last="no")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"episodes not in any of the datasets: \['nope'\]"):
         TactileFrameDataset(hdf5_root, episodes=["nope"])
     with pytest.raises(ValueError, match="no episode has any of the pads"):

@@ -45,6 +45,14 @@ def test_frames_with_two_workers_match_one_process(root: Path) -> None:
     assert_same(batches(ds, 2), batches(ds, 0))
 
 
+def test_channels_last_samples_collate_into_contiguous_batches(root: Path) -> None:
+    # default_collate stacks into contiguous memory, in workers and in one process: same values as the default
+    ds = TactileFrameDataset(root, compact=True, channels_last=True)
+    assert ds[0]["marked_rgb"].movedim(0, -1).is_contiguous()
+    assert_same(batches(ds, 2), batches(TactileFrameDataset(root, compact=True), 0))
+    assert_same(batches(ds, 0), batches(TactileFrameDataset(root, compact=True), 0))
+
+
 def test_each_worker_opens_its_own_handles(root: Path) -> None:
     ds = TactileFrameDataset(root, fields=["object_pose"])
     for k in range(0, len(ds), 8):  # the parent opens all 3 episodes before the workers fork

@@ -172,3 +172,36 @@ def test_info_json_lists_profiles_and_fields(tmp_path, storage):
     assert info["format_version"] == "1.0" and info["storage"] == storage
     assert info["sensors"]["xense_ws"]["n_markers"] == 220
     assert {f["path"] for f in info["fields"]} >= {"tactile/{pad}/depth_um", "robot/action"}
+
+
+def test_depth_and_masks_written_bit_shuffled_read_the_same(tmp_path, storage, monkeypatch):
+    """Early development builds bit-shuffled depth and contact masks; the shuffle lives in each chunk's Blosc
+    header, so such files must read exactly like today's byte-shuffled ones (and validate, and load)."""
+    import dataclasses
+
+    from univtac_data.loaders import TactileFrameDataset
+    from univtac_data.storage import encoding
+
+    current = encoding.encoding_for
+    episode = make_episode("gelsight_mini", 4, "ep0", seed=5)
+    DatasetWriter.open(tmp_path / "byte", storage=storage).add(episode)
+
+    def bit_shuffled(spec, shape):  # the first release's choice for the "depth" codec class
+        enc = current(spec, shape)
+        return dataclasses.replace(enc, shuffle="bit") if spec.codec == "depth" else enc
+
+    monkeypatch.setattr(encoding, "encoding_for", bit_shuffled)
+    DatasetWriter.open(tmp_path / "bit", storage=storage).add(episode)
+    monkeypatch.undo()
+    old, new = Dataset.open(tmp_path / "bit").load_episode("ep0"), Dataset.open(tmp_path / "byte").load_episode("ep0")
+    for path in ("tactile/left/depth_um", "tactile/right/contact_mask"):
+        assert old.arrays[path].tobytes() == new.arrays[path].tobytes() == episode.arrays[path].tobytes(), path
+    if storage == "hdf5":
+        import h5py
+
+        with h5py.File(tmp_path / "bit" / "episodes" / "ep0.h5", "r") as f:
+            assert tuple(f["tactile/left/depth_um"]._filters["32001"])[5] == 2   # Blosc's BITSHUFFLE flag
+    old_ds = TactileFrameDataset(tmp_path / "bit", compact=True)
+    new_ds = TactileFrameDataset(tmp_path / "byte", compact=True)
+    batch_old, batch_new = old_ds.read_batch(range(len(old_ds))), new_ds.read_batch(range(len(new_ds)))
+    assert np.array_equal(batch_old["depth_um"].numpy(), batch_new["depth_um"].numpy())

@@ -170,3 +170,61 @@ def test_partial_slip_matches_cattaneo_mindlin(load_fraction: float) -> None:
     c = np.sqrt(np.count_nonzero(stuck) * dx * dx / np.pi)
     assert c / a == pytest.approx((1.0 - load_fraction) ** (1 / 3), abs=0.02)
     assert float(result.slip_mm) == 0.0  # partial slip is not gross slip
+
+
+@pytest.mark.parametrize("twist_rad", [0.0, 0.02])
+def test_dense_and_fft_tangential_operators_agree(twist_rad: float) -> None:
+    """A Hertz contact of about 200 cells, dragged into partial slip: the dense matrix (the generator's path for
+    small contacts) and the FFT convolution give the same tractions and displacement within the solve's
+    tolerance."""
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    a, dx, n = 2.0, 0.25, 30
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    r2 = (x[None, :] ** 2 + (x[:, None] * 1.3) ** 2) / a**2
+    p = np.where(r2 < 1.0, 0.1 * np.sqrt(np.maximum(1.0 - r2, 0.0)), 0.0)
+    cells = int(np.count_nonzero(p))
+    assert 100 < cells < 400
+    dense = solve_shear(p, p > 0.0, dx, dx, x, x, material, (0.25, 0.1), twist_rad, None, dense_max_cells=cells)
+    fft = solve_shear(p, p > 0.0, dx, dx, x, x, material, (0.25, 0.1), twist_rad, None, dense_max_cells=cells - 1)
+    sliding = (p > 0.0) & (np.hypot(*dense.traction_mpa) >= material.friction * p * (1.0 - 1e-6))
+    assert 10 < np.count_nonzero(sliding) < cells - 10 and dense.slip_mm == 0.0   # partial slip, not gross slip
+    scale = np.abs(fft.traction_mpa).max()
+    assert np.abs(dense.traction_mpa - fft.traction_mpa).max() <= 2e-3 * scale
+    assert np.abs(dense.displacement_mm - fft.displacement_mm).max() <= 1e-3 * np.abs(fft.displacement_mm).max()
+    assert dense.shear_force_n == pytest.approx(fft.shear_force_n, rel=1e-3)
+
+
+@pytest.mark.parametrize("box", [(100, 140, 50, 90), (0, 240, 0, 320), (230, 240, 310, 320), (5, 6, 7, 8)])
+def test_windowed_block_mean_and_micrometres_equal_the_full_image_ones(box: tuple[int, int, int, int]) -> None:
+    from univtac_data.generators.tactile.frame import _block_mean_of_load, _to_micrometres
+
+    field = np.zeros((240, 320))
+    r0, r1, c0, c1 = box
+    field[r0:r1, c0:c1] = np.random.default_rng(1).random((r1 - r0, c1 - c0)) * 2.0
+    for factor in (4, 12):   # 12 does not divide 320: the last block column is padded
+        assert np.array_equal(_block_mean_of_load(field, factor), downsample_mean(field, factor, "constant"))
+    full = np.minimum(field * 1000.0 + 0.5, 65535.0).astype(np.uint16)
+    assert np.array_equal(_to_micrometres(field), full)
+    assert not _to_micrometres(np.zeros((240, 320))).any()
+
+
+def test_upsampled_pressure_is_the_full_image_computation_in_the_contact_box() -> None:
+    from univtac_data.generators.tactile.frame import _upsample_pressure
+    from univtac_data.generators.tactile.sensor_model import upsample_linear
+
+    step, shape = 3, (240, 320)
+    rng = np.random.default_rng(2)
+    coarse = np.zeros((80, 107))
+    coarse[30:50, 40:70] = rng.random((20, 30))
+    fine_mask = upsample_linear(coarse, step, shape) > 0.3
+    full = upsample_linear(coarse, step, shape)
+    window = (slice(91, 150), slice(118, 212))
+    assert np.array_equal(upsample_linear(coarse, step, shape, window=window), full[window])
+    pressure = _upsample_pressure(coarse, step, fine_mask)
+    assert fine_mask.any() and np.array_equal(pressure > 0.0, fine_mask & (pressure > 0.0))
+    assert not pressure[~fine_mask].any()
+    # inside the contact: sqrt of the bilinear p^2 (cells next to the edge extrapolated, so only interior checked)
+    interior = np.zeros(shape, bool)
+    interior[100:140, 130:200] = True
+    expected = np.sqrt(upsample_linear(coarse**2, step, shape))
+    assert np.allclose(pressure[interior & fine_mask], expected[interior & fine_mask])

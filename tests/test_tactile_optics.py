@@ -98,3 +98,67 @@ def test_shaded_slopes_take_the_light_colours() -> None:
     # the red light sits at azimuth 90 deg (+y, down the image): the slope facing it is the lower rim
     lower, upper = img[120 + 20, 160] - bg[120 + 20, 160], img[120 - 20, 160] - bg[120 - 20, 160]
     assert lower[0] > 20 and lower[0] > upper[0]
+
+
+def lambert_reference(depth: np.ndarray, profile) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The module docstring's formula in float64 array code, over the whole image: the oracle for the compiled
+    renderer (which shades only the deformed window, in float32)."""
+    gy, gx = np.gradient(depth, profile.mm_per_px_y, profile.mm_per_px_x)
+    norm = np.sqrt(1.0 + gx * gx + gy * gy)
+    normal = np.stack([-gx, -gy, -np.ones_like(gx)], axis=-1) / norm[..., None]
+    image = background_image(profile).copy()
+    for light in profile.optics.lights:
+        az, el = np.deg2rad(light.azimuth_deg), np.deg2rad(light.elevation_deg)
+        direction = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
+        change = np.maximum(normal @ direction, 0.0) - np.sin(el)
+        image += 255.0 * 1.3 * change[..., None] * np.asarray(light.rgb, dtype=np.float64)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("sensor", ["gelsight_mini", "gf225", "xense_ws"])
+def test_compiled_shading_matches_the_lambert_formula(sensor: str) -> None:
+    profile = get_sensor(sensor)
+    h, w = profile.image_height_px, profile.image_width_px
+    y, x = np.mgrid[:h, :w]
+    r = np.hypot((x - w / 2) * profile.mm_per_px_x, (y - h / 2) * profile.mm_per_px_y)
+    sink_in = 4.0 / (np.pi * np.maximum(r, 2.0))          # elastic: deformed everywhere
+    sphere = np.maximum(0.8 - r**2 / 10.0, 0.0)           # geometric: a window; its rim is where slopes jump
+    for depth in (sink_in, sphere):
+        got, want = render_shaded(depth, profile).astype(int), lambert_reference(depth, profile).astype(int)
+        assert np.abs(got - want).max() <= 1                      # float32 against float64
+        assert np.count_nonzero(got != want) <= 1e-3 * got.size
+    corner = np.zeros((h, w))
+    corner[: 3, w - 2 :] = 0.05                                     # a window cut by two image borders
+    assert np.abs(render_shaded(corner, profile).astype(int) - lambert_reference(corner, profile)).max() <= 1
+
+
+def draw_markers_reference(image: np.ndarray, centres: np.ndarray, radius: float, rgb: tuple[int, int, int]) -> np.ndarray:
+    """markers.py's rule pixel by pixel: float32 coverage clip(radius + 0.5 - distance, 0, 1), the largest over the
+    markers, then rint(under + (marker - under) * coverage)."""
+    h, w, _ = image.shape
+    coverage = np.zeros((h, w), np.float32)
+    half = int(np.ceil(radius + 1.5))
+    for cu, cv in centres:
+        for row in range(int(np.floor(cv)) - half, int(np.floor(cv)) + half + 1):
+            for col in range(int(np.floor(cu)) - half, int(np.floor(cu)) + half + 1):
+                if 0 <= row < h and 0 <= col < w:
+                    du, dv = np.float32(col - cu), np.float32(row - cv)
+                    alpha = np.clip(np.float32(radius + 0.5) - np.sqrt(du * du + dv * dv), 0.0, 1.0)
+                    coverage[row, col] = max(coverage[row, col], alpha)
+    under = image.astype(np.float32)
+    blended = under + (np.asarray(rgb, np.float32) - under) * coverage[..., None]
+    return np.where(coverage[..., None] > 0, np.rint(blended), image).astype(np.uint8)
+
+
+def test_compiled_marker_drawing_matches_the_rule_bit_for_bit() -> None:
+    from univtac_data.generators.tactile.markers import draw_markers
+
+    rng = np.random.default_rng(4)
+    for trial in range(6):
+        image = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+        centres = np.column_stack([rng.uniform(-8, 88, 12), rng.uniform(-8, 68, 12)])
+        centres[6:] = centres[:6] + rng.normal(0, 2.0, (6, 2))           # overlapping pairs
+        radius = [2.0, 3.3, 6.0][trial % 3]
+        got = draw_markers(image, centres, radius, (20, 30, 40))
+        np.testing.assert_array_equal(got, draw_markers_reference(image, centres, radius, (20, 30, 40)))
+        assert not np.shares_memory(got, image)

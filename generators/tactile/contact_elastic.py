@@ -16,7 +16,7 @@ box (plus two cells, or ``window_margin`` of its size), whose padded FFT is smal
 cached. The window's convolutions run in single precision, and K p follows the step (K p - alpha K t) plus a
 direct sum over the few cells the projection changed, so most iterations cost one convolution, not two. The
 displacement over the whole grid (the sink-in ring, which falls off like 1/r) is then one full-grid
-convolution. Outputs: D = u (>= overlap, equal to it in contact), p, force = sum(p) * cell area, mask p > 0.
+convolution, also in single precision. Outputs: D = u (>= overlap, equal to it in contact), p, force = sum(p) * cell area, mask p > 0.
 
 Finite gel thickness: none. The kernel is the half-space one; a gel layer of thickness h on a rigid backing is
 stiffer than the half-space when the contact radius approaches h (2 to 4 mm here, contact radii of 1 to
@@ -134,7 +134,8 @@ def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, conf
     pressure = np.zeros(grid.shape)
     pressure[window] = p_win
     full = kernel_set(grid.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
-    depth = np.maximum(convolve(pressure, full.zz, full.pad_shape), 0.0)
+    # single precision, as in the window: the depth is stored in whole micrometres, float32 resolves 1e-6 mm
+    depth = np.maximum(convolve(pressure.astype(np.float32), full.zz_single, full.pad_shape), 0.0).astype(np.float64)
     # in contact the surface follows the object exactly (the CG leaves a residual of order tol)
     mask = pressure > 0.0
     depth[mask] = -gap_mm[mask]

@@ -100,16 +100,52 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
             total += np.where(ok, 2.0 * nb1 - nb2, 0.0)
             count += ok
     q = np.where(count > 0, total / np.maximum(count, 1.0), q)
-    fine = upsample_linear(q, step, fine_mask.shape)
-    return np.where(fine_mask, np.sqrt(np.maximum(fine, 0.0)), 0.0)
+    out = np.zeros(fine_mask.shape)
+    win = _nonzero_box(fine_mask)   # pressure is zero off the contact: upsample only its box
+    if win is not None:
+        fine = upsample_linear(q, step, fine_mask.shape, window=win)
+        out[win] = np.where(fine_mask[win], np.sqrt(np.maximum(fine, 0.0)), 0.0)
+    return out
 
 
 def _to_micrometres(depth_mm: np.ndarray) -> np.ndarray:
     """(H, W) mm >= 0 -> uint16 um, rounded, saturating at 65535."""
-    um = depth_mm * 1000.0
-    um += 0.5
-    np.minimum(um, float(np.iinfo(np.uint16).max), out=um)
-    return um.astype(np.uint16)
+    out = np.zeros(depth_mm.shape, np.uint16)
+    win = _nonzero_box(depth_mm)   # zero depth is 0 um: only the deformed box is converted
+    if win is not None:
+        um = depth_mm[win] * 1000.0
+        um += 0.5
+        np.minimum(um, float(np.iinfo(np.uint16).max), out=um)
+        out[win] = um
+    return out
+
+
+def _nonzero_box(field: np.ndarray, align: int = 1) -> tuple[slice, slice] | None:
+    """Bounding box (rows, cols) of the nonzero entries of ``field`` (H, W), widened outward to multiples of
+    ``align`` (clipped at H and W); None when all are zero."""
+    nonzero = field != 0
+    rows = np.flatnonzero(nonzero.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(nonzero[rows[0] : rows[-1] + 1].any(axis=0))
+    h, w = field.shape
+    r0, c0 = rows[0] // align * align, cols[0] // align * align
+    r1, c1 = min(-(-(rows[-1] + 1) // align) * align, h), min(-(-(cols[-1] + 1) // align) * align, w)
+    return slice(int(r0), int(r1)), slice(int(c0), int(c1))
+
+
+def _block_mean_of_load(pressure: np.ndarray, factor: int) -> np.ndarray:
+    """``downsample_mean(pressure, factor, "constant")``, bit for bit, summing only the blocks under the load."""
+    if factor == 1:
+        return pressure
+    h, w = pressure.shape
+    out = np.zeros((-(-h // factor), -(-w // factor)))
+    win = _nonzero_box(pressure, factor)
+    if win is not None:
+        coarse = (slice(win[0].start // factor, -(-win[0].stop // factor)),
+                  slice(win[1].start // factor, -(-win[1].stop // factor)))
+        out[coarse] = downsample_mean(pressure[win], factor, "constant")
+    return out
 
 
 def simulate_frame(
@@ -161,7 +197,7 @@ def simulate_frame(
     shear_step = step * max(1, -(-config.shear_step // step))
     grid_sh = sensor_grid(profile, shear_step)
     factor = shear_step // step
-    p_sh = downsample_mean(result.pressure_mpa, factor, "constant")
+    p_sh = _block_mean_of_load(result.pressure_mpa, factor)
     shear = solve_shear(
         p_sh, p_sh > 0.0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm, grid_sh.y_mm, material,
         tangential_mm, twist_rad, state,

@@ -89,6 +89,7 @@ class KernelSet:
         self.zz_centred = np.fft.fftshift(zz_spatial)[1:, 1:].astype(np.float32)
         self._tangential: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tangential_single: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._tangential_centred: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._radial: tuple[np.ndarray, np.ndarray] | None = None
 
     def _spectrum(self, k: np.ndarray) -> np.ndarray:
@@ -108,21 +109,29 @@ class KernelSet:
         for r, c, v in zip(rows.tolist(), cols.tolist(), values.tolist(), strict=True):
             field += np.float32(v) * self.zz_centred[ny - 1 - r : 2 * ny - 1 - r, nx - 1 - c : 2 * nx - 1 - c]
 
+    def _tangential_spatial(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g
+        f = _corner_sum(_f_inv_r, x, y, a, b)
+        c = 1.0 / (2.0 * np.pi * g)
+        return (c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, x, y, a, b)),
+                c * nu * _corner_sum(_h_xy, x, y, a, b),
+                c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, y, x, b, a)))
+
     def tangential(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(xx, xy, yy) spectra: traction (MPa) -> in-plane displacement (mm)."""
         if self._tangential is None:
-            x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g
-            f = _corner_sum(_f_inv_r, x, y, a, b)
-            hxx = _corner_sum(_h_xx, x, y, a, b)
-            hyy = _corner_sum(_h_xx, y, x, b, a)
-            hxy = _corner_sum(_h_xy, x, y, a, b)
-            c = 1.0 / (2.0 * np.pi * g)
-            self._tangential = (
-                self._spectrum(c * ((1.0 - nu) * f + nu * hxx)),
-                self._spectrum(c * nu * hxy),
-                self._spectrum(c * ((1.0 - nu) * f + nu * hyy)),
-            )
+            self._tangential = tuple(self._spectrum(k) for k in self._tangential_spatial())  # type: ignore[assignment]
+        assert self._tangential is not None
         return self._tangential
+
+    def tangential_centred(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(xx, xy, yy) influence coefficients (mm per MPa) as float32 (2 ny - 1, 2 nx - 1) arrays: entry
+        (ny - 1 + dr, nx - 1 + dc) is the displacement of a cell dr rows and dc columns from the loaded one."""
+        if self._tangential_centred is None:
+            self._tangential_centred = tuple(  # type: ignore[assignment]
+                np.fft.fftshift(k)[1:, 1:].astype(np.float32) for k in self._tangential_spatial())
+        assert self._tangential_centred is not None
+        return self._tangential_centred
 
     def tangential_single(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``tangential()`` in single precision (complex64), converted once."""

@@ -12,6 +12,7 @@ which is exactly the profile's tinted, vignetted background wherever the gel is 
 the slopes of a contact (a slope facing a light brightens in that light's colour, the opposite slope darkens).
 ``vignette = 1 - vignetting * (r / r_corner)^2``. Optional seeded Gaussian noise (grey levels) is added
 before quantisation. Only the bounding box of the deformation is shaded; the rest is the cached background.
+The shading runs compiled (numba), in float32, one pass per pixel row.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
 
 from univtac_data.schema.sensors import SensorProfile
@@ -59,29 +61,72 @@ def _lights(profile: SensorProfile) -> tuple[np.ndarray, np.ndarray]:
 
 def _shade(depth: np.ndarray, profile: SensorProfile, gain: float) -> np.ndarray:
     """(h, w, 3) float32 shading change (grey levels) of a depth patch (h, w) mm."""
-    d = depth.astype(np.float32, copy=False)
-    gx = np.empty_like(d)
-    gy = np.empty_like(d)
-    # central differences inside, one-sided at the patch border (as numpy.gradient), in float32
-    gx[:, 1:-1] = (d[:, 2:] - d[:, :-2]) * np.float32(0.5 / profile.mm_per_px_x)
-    gx[:, 0] = (d[:, 1] - d[:, 0]) * np.float32(1.0 / profile.mm_per_px_x)
-    gx[:, -1] = (d[:, -1] - d[:, -2]) * np.float32(1.0 / profile.mm_per_px_x)
-    gy[1:-1] = (d[2:] - d[:-2]) * np.float32(0.5 / profile.mm_per_px_y)
-    gy[0] = (d[1] - d[0]) * np.float32(1.0 / profile.mm_per_px_y)
-    gy[-1] = (d[-1] - d[-2]) * np.float32(1.0 / profile.mm_per_px_y)
-    inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+    shade = np.empty((*depth.shape, 3), dtype=np.float32)
+    _shade_window(depth, (slice(0, depth.shape[0]), slice(0, depth.shape[1])), profile, gain,
+                  np.zeros((0, 0, 3), np.float32), shade, np.zeros((0, 0, 3), np.uint8))
+    return shade
+
+
+def _shade_window(depth: np.ndarray, win: tuple[slice, slice], profile: SensorProfile, gain: float,
+                  background: np.ndarray, shade: np.ndarray, image: np.ndarray) -> None:
     dirs, rgb = _lights(profile)
-    # channel-first planes (3, h w) so that both products are single matrix products with a long inner
-    # loop; the (h, w, 3) @ (3, K) form runs h small products and a broadcast over K, several times slower
-    normals = np.empty((3, d.size), dtype=np.float32)
-    np.multiply(gx, inv, out=normals[0].reshape(d.shape))
-    np.multiply(gy, inv, out=normals[1].reshape(d.shape))
-    normals[2] = inv.ravel()
-    lam = (-dirs).astype(np.float32) @ normals  # (K, h w): n . l with n = (-gx, -gy, -1) / norm
-    np.maximum(lam, 0.0, out=lam)
-    lam += dirs[:, 2:3].astype(np.float32)  # subtract the flat level sin(e) (dirs z = -sin e)
-    shade = (rgb.T * (255.0 * gain)).astype(np.float32) @ lam  # (3, h w)
-    return shade.T.reshape(*d.shape, 3)
+    # n . l_k = sum_j n_j (-l_k)_j with n = (-gx, -gy, -1) / norm; the flat gel gives sin(e_k) = -(l_k)_z
+    _shade_kernel(depth, win[0].start, win[0].stop, win[1].start, win[1].stop,
+                  np.float32(1.0 / profile.mm_per_px_x), np.float32(1.0 / profile.mm_per_px_y),
+                  (-dirs).astype(np.float32), dirs[:, 2].astype(np.float32),
+                  np.ascontiguousarray((rgb.T * (255.0 * gain)).astype(np.float32)), background, shade, image)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _shade_kernel(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dx: np.float32, inv_dy: np.float32,
+                  neg_dirs: np.ndarray, flat_level: np.ndarray, rgb_gain: np.ndarray, background: np.ndarray,
+                  shade: np.ndarray, image: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Shading of the window rows r0:r1, cols c0:c1 of ``depth`` (H, W) mm, in float32. With an empty ``image``:
+    the change in grey levels into ``shade`` (r1 - r0, c1 - c0, 3). Otherwise ``image`` (H, W, 3) uint8 =
+    clip(rint(``background`` (H, W, 3) float32 + change), 0, 255) in the window, and ``shade`` is unused.
+    Slopes are central differences inside the window and one-sided at its border (as numpy.gradient on the
+    window). Row by row, in branch-free loops the compiler vectorises (array code would make a dozen passes)."""
+    w = c1 - c0
+    half_dx, half_dy = np.float32(0.5) * inv_dx, np.float32(0.5) * inv_dy
+    write_image = image.shape[0] > 0
+    here, above, below = np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.float32)
+    gx, gy = np.zeros(w, np.float32), np.empty(w, np.float32)
+    inv, nx, ny = np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.float32)
+    s0, s1, s2 = np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.float32)
+    for i in range(r0, r1):
+        up, down = max(i - 1, r0), min(i + 1, r1 - 1)
+        scale_y = half_dy if down - up == 2 else (inv_dy if down > up else np.float32(0.0))
+        for j in range(w):
+            here[j] = depth[i, c0 + j]
+            above[j] = depth[up, c0 + j]
+            below[j] = depth[down, c0 + j]
+        for j in range(1, w - 1):
+            gx[j] = (here[j + 1] - here[j - 1]) * half_dx
+        if w > 1:
+            gx[0] = (here[1] - here[0]) * inv_dx
+            gx[w - 1] = (here[w - 1] - here[w - 2]) * inv_dx
+        for j in range(w):
+            gy[j] = (below[j] - above[j]) * scale_y
+            inv[j] = np.float32(1.0) / np.sqrt(np.float32(1.0) + gx[j] * gx[j] + gy[j] * gy[j])
+            nx[j] = gx[j] * inv[j]
+            ny[j] = gy[j] * inv[j]
+            s0[j] = s1[j] = s2[j] = np.float32(0.0)
+        for k in range(neg_dirs.shape[0]):
+            l0, l1, l2, flat = neg_dirs[k, 0], neg_dirs[k, 1], neg_dirs[k, 2], flat_level[k]
+            g0, g1, g2 = rgb_gain[0, k], rgb_gain[1, k], rgb_gain[2, k]
+            for j in range(w):
+                lam = max(l0 * nx[j] + l1 * ny[j] + l2 * inv[j], np.float32(0.0)) + flat
+                s0[j] += g0 * lam
+                s1[j] += g1 * lam
+                s2[j] += g2 * lam
+        if write_image:
+            for j in range(w):
+                image[i, c0 + j, 0] = np.uint8(min(max(np.rint(background[i, c0 + j, 0] + s0[j]), np.float32(0.0)), np.float32(255.0)))
+                image[i, c0 + j, 1] = np.uint8(min(max(np.rint(background[i, c0 + j, 1] + s1[j]), np.float32(0.0)), np.float32(255.0)))
+                image[i, c0 + j, 2] = np.uint8(min(max(np.rint(background[i, c0 + j, 2] + s2[j]), np.float32(0.0)), np.float32(255.0)))
+        else:
+            for j in range(w):
+                shade[i - r0, j, 0], shade[i - r0, j, 1], shade[i - r0, j, 2] = s0[j], s1[j], s2[j]
 
 
 @lru_cache(maxsize=16)
@@ -113,10 +158,8 @@ def render_shaded(
         # only the deformed window differs from the cached background
         out = _background_uint8(profile).copy()
         if win is not None:
-            patch = _background_single(profile)[win] + _shade(depth_mm[win], profile, config.gain)
-            np.rint(patch, out=patch)
-            np.clip(patch, 0, 255, out=patch)
-            out[win] = patch
+            _shade_window(depth_mm, win, profile, config.gain, _background_single(profile),
+                          np.zeros((0, 0, 3), np.float32), out)
         return out
     img = background_image(profile).copy()
     if win is not None:

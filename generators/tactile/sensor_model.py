@@ -137,14 +137,20 @@ def _upsample_weights(n_out: int, step: int, n_in: int) -> tuple[np.ndarray, np.
     return i0, i1, t
 
 
-def upsample_linear(field: np.ndarray, step: int, shape: tuple[int, int]) -> np.ndarray:
+def upsample_linear(field: np.ndarray, step: int, shape: tuple[int, int],
+                    window: tuple[slice, slice] | None = None) -> np.ndarray:
     """Bilinear upsampling of a solver-grid field (ny, nx) back to the image grid ``shape`` (H, W).
 
     Inverse of the cell layout of :func:`sensor_grid`; values beyond the outer cell centres are held constant.
+    ``window``: (rows, cols) slices of the image grid: only those pixels are computed (and returned), with
+    the same values as the full result there.
     """
     if step == 1:
-        return field
+        return field if window is None else field[window]
     r0, r1, tr = _upsample_weights(shape[0], step, field.shape[0])
     c0, c1, tc = _upsample_weights(shape[1], step, field.shape[1])
+    if window is not None:
+        r0, r1, tr = r0[window[0]], r1[window[0]], tr[window[0]]
+        c0, c1, tc = c0[window[1]], c1[window[1]], tc[window[1]]
     rows = field[r0] * (1.0 - tr)[:, None] + field[r1] * tr[:, None]
     return rows[:, c0] * (1.0 - tc) + rows[:, c1] * tc

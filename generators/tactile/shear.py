@@ -10,9 +10,11 @@ displacement ``tangential_mm`` (dx, dy) in the pad frame and its twist ``twist_r
    the reference is zero: the inputs are already "since contact onset".
 2. Stuck tractions. Cells in contact move with the object, ``u_t(x) = s + theta z x (x - c)`` (c: the
    pressure centroid). The tractions q (MPa, 2 components) that produce u_t on the contact set are found by
-   conjugate gradient with the Cerruti influence coefficients (:mod:`.kernels`; symmetric positive definite).
-3. Gross slip. If the total tangential force exceeds mu * P (or the torque exceeds mu * sum(p |x - c|) dA) the
-   object slides: the load is scaled back to the friction limit and the reference follows the object, so the
+   conjugate gradient with the Cerruti influence coefficients (:mod:`.kernels`; symmetric positive definite):
+   as a dense matrix over the contact's cells when there are at most ``DENSE_MAX_CELLS``, else by FFT
+   convolution over the contact's window.
+3. Gross slip. If the total tangential force exceeds mu * P (or the torque exceeds mu * sum(p |x - c|) dA),
+   by more than ``SLIDE_TOLERANCE``, the object slides: the load is scaled back to the friction limit and the reference follows the object, so the
    excess displacement is accumulated in ``slip_mm`` (mm; a twist slide counts as the mean contact radius
    times the angle). While stuck, ``slip_mm`` stays 0; it resets when contact ends.
 4. Partial slip (Cattaneo-Mindlin). Cells whose stuck traction exceeds mu * p slide: their traction is set to
@@ -26,6 +28,8 @@ frames; the slip state is that of the whole contact. Tangential loads do not mov
 
 from __future__ import annotations
 
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +37,7 @@ import scipy.fft as sfft
 
 from univtac_data.schema.sensors import Material
 
-from .kernels import kernel_set
+from .kernels import KernelSet, kernel_set
 
 __all__ = ["ContactState", "ShearResult", "solve_shear"]
 
@@ -80,23 +84,90 @@ def _window(mask: np.ndarray, grow: int) -> tuple[slice, slice]:
     return out[0], out[1]
 
 
-class _TangentialOperator:
-    """q (2, ny, nx) MPa -> in-plane displacement (2, ny, nx) mm on a window."""
+# Contacts of at most this many cells get the dense operator below; larger ones the FFT operator. A dense
+# matrix-vector product on 2 x 400 unknowns costs about as much as one FFT convolution of the window, and
+# building the matrix grows with the square of the cells.
+DENSE_MAX_CELLS = 400
 
-    def __init__(self, shape: tuple[int, int], dx: float, dy: float, material: Material) -> None:
-        ks = kernel_set(shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
+
+class _DenseCells:
+    """Traction on the contact cells (2, m) MPa -> in-plane displacement of those cells (2, m) mm, as one
+    float32 matrix: on the few hundred cells of a typical contact a matrix-vector product takes
+    microseconds, where each FFT convolution pays tens of microseconds of call overhead."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, grid_shape: tuple[int, int], dx: float, dy: float,
+                 material: Material) -> None:
+        # the matrix depends only on the cells' relative positions: a contact that keeps its shape from one
+        # frame to the next (about half the frames) reuses it
+        rows, cols = rows - rows.min(), cols - cols.min()
+        key = (grid_shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, rows.tobytes(), cols.tobytes())
+        matrix = _RECENT_MATRICES.pop(key, None)
+        if matrix is None:
+            matrix = _dense_matrix(rows, cols, kernel_set(grid_shape, dx, dy, material.youngs_modulus_mpa,
+                                                           material.poisson_ratio))
+        _RECENT_MATRICES[key] = matrix
+        while len(_RECENT_MATRICES) > RECENT_MATRICES_KEPT:
+            _RECENT_MATRICES.popitem(last=False)
+        self.matrix = matrix
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        return (self.matrix @ q.astype(np.float32).reshape(-1)).reshape(2, -1)
+
+
+RECENT_MATRICES_KEPT = 4   # two pads, each with the contact of this frame and the last
+_RECENT_MATRICES: OrderedDict[tuple[object, ...], np.ndarray] = OrderedDict()
+
+
+def _dense_matrix(rows: np.ndarray, cols: np.ndarray, ks: KernelSet) -> np.ndarray:
+    """(2 m, 2 m) float32 [[xx, xy], [xy, yy]] influence matrix of cells (``rows``, ``cols``) of ``ks``'s grid."""
+    xx, xy, yy = ks.tangential_centred()
+    ny, nx = ks.shape
+    # entry (i, j) is the kernel at the offset of cell i from cell j: a difference of flat indices into the
+    # (2 ny - 1, 2 nx - 1) kernels, centre at (ny - 1, nx - 1)
+    flat = (rows * (2 * nx - 1) + cols).astype(np.int32)
+    offset = flat[:, None] - (flat - np.int32((ny - 1) * (2 * nx - 1) + nx - 1))[None, :]
+    m = rows.size
+    matrix = np.empty((2 * m, 2 * m), np.float32)
+    matrix[:m, :m] = xx.ravel()[offset]
+    matrix[:m, m:] = xy.ravel()[offset]
+    matrix[m:, :m] = matrix[:m, m:]   # the x-y coupling kernel is even in the offset: the block is symmetric
+    matrix[m:, m:] = yy.ravel()[offset]
+    matrix.flags.writeable = False    # shared between frames through the cache
+    return matrix
+
+
+class _WindowCells:
+    """The same map as ``_DenseCells`` by FFT convolution over the window around the contact, for contacts
+    too large for a matrix."""
+
+    def __init__(self, contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
+                 material: Material) -> None:
+        win = _window(contact_mask, 2)
+        self.shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
+        ks = kernel_set(self.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
         # single precision: the solve stops at a relative residual of 1e-4, far above float32's 1e-7
         self.xx, self.xy, self.yy = ks.tangential_single()
         self.pad = ks.pad_shape
-        self.shape = shape
+        self.rows, self.cols = rows - win[0].start, cols - win[1].start
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
+        field = np.zeros((2, *self.shape), np.float32)
+        field[:, self.rows, self.cols] = q
         # both components in one transform each way: on these small windows the per-call overhead of the
         # FFT, not its arithmetic, is what the solve pays for
-        fx, fy = sfft.rfft2(q.astype(np.float32), s=self.pad, axes=(-2, -1), workers=1)
-        ny, nx = self.shape
+        fx, fy = sfft.rfft2(field, s=self.pad, axes=(-2, -1), workers=1)
         spectrum = np.stack([self.xx * fx + self.xy * fy, self.xy * fx + self.yy * fy])
-        return sfft.irfft2(spectrum, s=self.pad, axes=(-2, -1), workers=1)[:, :ny, :nx]
+        return sfft.irfft2(spectrum, s=self.pad, axes=(-2, -1), workers=1)[:, self.rows, self.cols]
+
+
+CellOperator = Callable[[np.ndarray], np.ndarray]
+
+
+def _cell_operator(contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
+                   material: Material, dense_max_cells: int) -> CellOperator:
+    if rows.size <= dense_max_cells:
+        return _DenseCells(rows, cols, contact_mask.shape, dx, dy, material)
+    return _WindowCells(contact_mask, rows, cols, dx, dy, material)
 
 
 # Relative residual at which the tangential solves stop. Marker positions are stored in px, where 1e-4 of the
@@ -104,30 +175,37 @@ class _TangentialOperator:
 CG_TOLERANCE = 1e-4
 
 
+# A load this far (relative) above the friction limit still counts as stuck: at the limit, solves of the same state
+# scatter by the CG tolerance around it, and a held contact would otherwise creep by that much every frame.
+SLIDE_TOLERANCE = 10 * CG_TOLERANCE
+
+
 # Tolerance of the intermediate partial-slip rounds, which only decide which cells slide; the settled slip set
 # is then solved once at CG_TOLERANCE.
 SLIP_ROUND_TOLERANCE = 1e-2
 
 
-def _cg(op: _TangentialOperator, cells: np.ndarray, rhs: np.ndarray, tol: float = CG_TOLERANCE,
+def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_TOLERANCE,
         max_iter: int = 200, start: np.ndarray | None = None) -> np.ndarray:
-    """Solve op(q) = rhs on ``cells`` (q = 0 elsewhere) by conjugate gradient; (2, ny, nx). ``start``: an
-    initial guess (used on ``cells``). Stops when the residual is ``tol`` of the right-hand side, so a good
-    guess saves iterations without changing what "converged" means."""
-    b = np.where(cells, rhs, 0.0)
+    """Solve op(q) = rhs on the ``active`` contact cells (m,) bool (q = 0 on the others) by conjugate
+    gradient; q and rhs are (2, m). ``start``: an initial guess (used on ``active``). Stops when the residual
+    is ``tol`` of the right-hand side, so a good guess saves iterations without changing what "converged"
+    means."""
+    keep = active.astype(np.float64)
+    b = rhs * keep
     if start is None:
-        q = np.zeros_like(rhs)
+        q = np.zeros_like(b)
         r = b
     else:
-        q = np.where(cells, start, 0.0)
-        r = b - np.where(cells, op(q), 0.0)
+        q = start * keep
+        r = b - op(q) * keep
     d = r.copy()
     rr = float(np.vdot(r, r))
     stop = tol * tol * max(float(np.vdot(b, b)), 1e-300)
     for _ in range(max_iter):
         if rr <= stop:
             break
-        ad = np.where(cells, op(d), 0.0)
+        ad = op(d) * keep
         alpha = rr / float(np.vdot(d, ad))
         q += alpha * d
         r -= alpha * ad
@@ -149,9 +227,12 @@ def solve_shear(
     twist_rad: float,
     state: ContactState | None,
     slip_rounds: int = 8,
+    dense_max_cells: int = DENSE_MAX_CELLS,
 ) -> ShearResult:
     """Tangential tractions, in-plane displacement (on the grid of ``pressure_mpa`` (ny, nx), cell centres
-    ``x_mm`` (nx,), ``y_mm`` (ny,)), force and slip; see the module docstring."""
+    ``x_mm`` (nx,), ``y_mm`` (ny,)), force and slip; see the module docstring. ``dense_max_cells``: contacts
+    of at most this many cells are solved with a dense matrix, larger ones by FFT (same result within the
+    solve's tolerance)."""
     shape = pressure_mpa.shape
     zero2 = np.zeros((2, *shape))
     if not contact_mask.any():
@@ -168,29 +249,30 @@ def solve_shear(
     area = dx_mm * dy_mm
     mu = material.friction
 
-    win = _window(contact_mask, 2)
-    p = pressure_mpa[win]
-    cells = contact_mask[win]
-    gx, gy = np.meshgrid(x_mm[win[1]], y_mm[win[0]])
+    # everything below lives on the m contact cells, as (m,) or (2, m) arrays
+    rows, cols = np.nonzero(contact_mask)
+    p = pressure_mpa[rows, cols]
+    gx, gy = x_mm[cols], y_mm[rows]
     total_p = float(p.sum())
     cx, cy = float((p * gx).sum() / total_p), float((p * gy).sum() / total_p)
     rx, ry = gx - cx, gy - cy
-    op = _TangentialOperator(p.shape, dx_mm, dy_mm, material)
+    op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells)
     ones = np.ones(p.shape)
+    every = np.ones(p.shape, dtype=bool)
 
     q = np.zeros((2, *p.shape))
     lam_s = lam_t = 1.0
     if np.any(s != 0.0):
-        q_s = _cg(op, cells, np.stack([s[0] * ones, s[1] * ones]))
-        force = np.hypot(*(q_s.sum(axis=(1, 2)) * area))
+        q_s = _cg(op, every, np.stack([s[0] * ones, s[1] * ones]))
+        force = np.hypot(*(q_s.sum(axis=1) * area))
         limit = mu * total_p * area
-        lam_s = min(1.0, limit / force) if force > 0.0 else 1.0
+        lam_s = limit / force if force > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
         q += lam_s * q_s
     if theta != 0.0:
-        q_t = _cg(op, cells, np.stack([-theta * ry, theta * rx]))
+        q_t = _cg(op, every, np.stack([-theta * ry, theta * rx]))
         torque = abs(float((rx * q_t[1] - ry * q_t[0]).sum() * area))
         limit = mu * float((p * np.hypot(rx, ry)).sum() * area)
-        lam_t = min(1.0, limit / torque) if torque > 0.0 else 1.0
+        lam_t = limit / torque if torque > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
         q += lam_t * q_t
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta
@@ -205,7 +287,7 @@ def solve_shear(
         rounds, solved_loose = 0, False
         while True:
             mag = np.hypot(q[0], q[1])
-            over = cells & ~sliding & (mag > limit_cell * (1.0 + 1e-9))
+            over = ~sliding & (mag > limit_cell * (1.0 + 1e-9))
             if over.any() and rounds < slip_rounds:
                 sliding |= over
                 rounds += 1
@@ -217,14 +299,13 @@ def solve_shear(
                 tol = CG_TOLERANCE  # the slip set has settled (or the rounds are spent): converge it once
             else:
                 break
-            stick = cells & ~sliding
+            stick = ~sliding
             # the previous round's stuck tractions are a close guess: only the cells that just began to slide moved
             q = q_slip + (_cg(op, stick, target - op(q_slip), tol=tol, start=q - q_slip) if stick.any() else 0.0)
             solved_loose = tol == SLIP_ROUND_TOLERANCE
-        q = np.where(cells, q, 0.0)
 
     traction = np.zeros((2, *shape))
-    traction[(slice(None), *win)] = q
+    traction[:, rows, cols] = q
     ks = kernel_set(shape, dx_mm, dy_mm, material.youngs_modulus_mpa, material.poisson_ratio)
     displacement = np.zeros((2, *shape))
     if material.poisson_ratio < 0.5:
@@ -242,5 +323,5 @@ def solve_shear(
         in_contact=True, reference_mm=(float(reference[0]), float(reference[1])),
         reference_twist_rad=float(twist_ref), slip_mm=float(slip),
     )
-    return ShearResult(traction, displacement, q.sum(axis=(1, 2)) * area, float(slip), new_state)
+    return ShearResult(traction, displacement, q.sum(axis=1) * area, float(slip), new_state)
 

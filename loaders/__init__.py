@@ -1,6 +1,7 @@
 """PyTorch loaders for univtac-data datasets, in three layers (as diffusion_policy's):
 
-* episode store (``episodes.py``): which episodes, and a per-process LRU of open handles;
+* episode store (``episodes.py``): which episodes, and a per-process LRU of open handles, with the layouts
+  of HDF5 episodes kept after closing them (``layouts.py``, ``files.py``);
 * sampler (``sampler.py``): index tables of frames and windows, computed once, no I/O;
 * torch datasets (``frames.py``, ``policy.py``): look a row up, read, convert to tensors.
 

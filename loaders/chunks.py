@@ -8,6 +8,11 @@ from the file at the place HDF5's chunk index gives (listed once per array with 
 ``read_direct_chunk`` remains for files HDF5 does not open as plain local files), and Blosc decodes them
 into the caller's buffer (a slot of the batch tensor, or a scratch frame reused for every read).
 
+What decoding needs besides the file's bytes (``FrameLayout``: frame shape, dtype and the chunks' places)
+is kept apart from any open file, so that a reader can keep it after closing the episode and read the
+next frame with a plain descriptor and ``os.pread`` instead of reopening the file with h5py (about 2 ms
+an episode; ``loaders/layouts.py``).
+
 What HDF5 would check is still checked: the chunk's Fletcher-32 checksum (HDF5's ``H5_checksum_fletcher32``,
 through numcodecs' C port of it: about 9 us for a 23 KiB chunk, half of what the NumPy closed form took) and
 the Blosc header's sizes. Anything this module does not handle itself
@@ -19,6 +24,7 @@ raises the format's one-line ``CorruptFileError`` naming the file, exactly as be
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import h5py
@@ -31,7 +37,6 @@ FLETCHER32_FILTER_ID = 3         # H5Z_FILTER_FLETCHER32
 BLOSC_HEADER_BYTES = 16          # Blosc 1 header: version, versionlz, flags, typesize, nbytes, blocksize, cbytes
 _FLETCHER32 = Fletcher32()       # stateless: safe to share between threads
 
-ChunkPlace = tuple[int, int, int]   # (byte offset in the file, stored bytes, HDF5 filter mask)
 
 
 def fletcher32(data: bytes | memoryview | np.ndarray) -> int:
@@ -60,39 +65,65 @@ def blosc_sizes(stream: memoryview) -> tuple[int, int]:
     return int.from_bytes(header[4:8], "little"), int.from_bytes(header[12:16], "little")
 
 
-def chunk_places(dataset: h5py.Dataset) -> dict[int, ChunkPlace] | None:
-    """Where each written frame's chunk is stored in the file (frame -> place), from one pass over HDF5's
-    chunk index; ``None`` when the file is not a plain local file (another HDF5 driver) or this HDF5
-    build cannot list chunks (``chunk_iter`` needs a recent HDF5; h5py's wheels have one)."""
-    if dataset.file.driver != "sec2":
-        return None
-    places: dict[int, ChunkPlace] = {}
 
-    def note(info: h5py.h5d.StoreInfo) -> None:
-        places[int(info.chunk_offset[0])] = (int(info.byte_offset), int(info.size), int(info.filter_mask))
+@dataclass(frozen=True)
+class ChunkPlaces:
+    """Where each frame's chunk of one array is stored in its file, as two arrays of 8 bytes a frame: a
+    cache of the places of thousands of episodes stays small (a dict of tuples takes about 200 bytes a
+    frame). Read-only, so one instance may be shared by the threads of a process."""
 
-    try:
-        dataset.id.chunk_iter(note)
-    except Exception:  # an older HDF5 or h5py, or an unreadable chunk index: read_direct_chunk decides
-        return None
-    return places
+    offsets: np.ndarray   # (T,) int64: byte offset of frame t's chunk in the file; -1: none to read here
+                          # (never written, so h5py gives the fill value; or HDF5 skipped a filter for it)
+    sizes: np.ndarray     # (T,) int64: stored bytes of that chunk (the Blosc stream, then the checksum)
+
+    @classmethod
+    def of(cls, dataset: h5py.Dataset) -> ChunkPlaces | None:
+        """The places of ``dataset``'s frames, from one pass over HDF5's chunk index; ``None`` when the file
+        is not a plain local file (another HDF5 driver) or this HDF5 build cannot list chunks
+        (``chunk_iter`` needs a recent HDF5; h5py's wheels have one)."""
+        if dataset.file.driver != "sec2":
+            return None
+        n_frames = int(dataset.shape[0])
+        offsets, sizes = np.full(n_frames, -1, np.int64), np.zeros(n_frames, np.int64)
+
+        def note(info: h5py.h5d.StoreInfo) -> None:
+            frame = int(info.chunk_offset[0])
+            if info.filter_mask == 0 and 0 <= frame < n_frames:
+                offsets[frame], sizes[frame] = int(info.byte_offset), int(info.size)
+
+        try:
+            dataset.id.chunk_iter(note)
+        except Exception:  # an older HDF5 or h5py, or an unreadable chunk index: read_direct_chunk decides
+            return None
+        offsets.flags.writeable = sizes.flags.writeable = False
+        return cls(offsets, sizes)
+
+    def get(self, frame: int) -> tuple[int, int] | None:
+        """``(offset, stored bytes)`` of frame ``frame``'s chunk (0 <= frame < T), or ``None``."""
+        offset = int(self.offsets[frame])
+        return None if offset < 0 else (offset, int(self.sizes[frame]))
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.offsets.nbytes + self.sizes.nbytes)
 
 
 @dataclass(frozen=True)
-class FrameChunks:
-    """An HDF5 array whose frames this module can decode: chunked one frame per chunk, filters exactly
-    Blosc then Fletcher-32 (the format's encoding for images and depth)."""
+class FrameLayout:
+    """An HDF5 array whose frames this module decodes (chunked one frame per chunk, filters exactly Blosc then
+    Fletcher-32: the format's encoding for images, depth and masks), described without any open file: what
+    decoding frame t needs besides the file's bytes. Immutable; ``loaders.layouts`` keeps it after the
+    file is closed."""
 
-    dataset: h5py.Dataset
-    frame_shape: tuple[int, ...]   # shape of one frame, e.g. (240, 320, 3)
+    frame_shape: tuple[int, ...]   # shape of one frame, e.g. (240, 320, 3) for an image
+    dtype: np.dtype                # stored dtype, e.g. uint8 for images and masks, uint16 for depth_um
     frame_nbytes: int              # bytes of one decoded frame
     n_frames: int                  # frames in the array (h5py's ``shape`` costs microseconds per call)
-    places: dict[int, ChunkPlace] | None   # frame -> where its chunk is stored; None: use read_direct_chunk
-    file_descriptor: int           # the open file's descriptor, for os.pread at those places (-1 without)
+    places: ChunkPlaces | None     # None: HDF5 cannot list the chunks; read them with read_direct_chunk
 
     @classmethod
-    def of(cls, dataset: h5py.Dataset) -> FrameChunks | None:
-        """``FrameChunks`` for ``dataset``, or ``None`` when its layout or filters are anything else."""
+    def of(cls, dataset: h5py.Dataset) -> FrameLayout | None:
+        """The layout of ``dataset``, or ``None`` when its chunks or filters are anything else."""
         if dataset.chunks is None or dataset.ndim < 2 or dataset.chunks != (1, *dataset.shape[1:]):
             return None
         plist = dataset.id.get_create_plist()
@@ -100,29 +131,59 @@ class FrameChunks:
         if filters != [BLOSC_FILTER_ID, FLETCHER32_FILTER_ID]:
             return None
         frame_shape = tuple(int(s) for s in dataset.shape[1:])
-        places = chunk_places(dataset)
-        descriptor = -1 if places is None else int(dataset.file.id.get_vfd_handle())
-        return cls(dataset, frame_shape, int(np.prod(frame_shape)) * dataset.dtype.itemsize, int(dataset.shape[0]),
-                   places, descriptor)
+        return cls(frame_shape, np.dtype(dataset.dtype), int(np.prod(frame_shape)) * dataset.dtype.itemsize,
+                   int(dataset.shape[0]), ChunkPlaces.of(dataset))
+
+
+@dataclass(frozen=True)
+class FrameChunks:
+    """The frames of a ``FrameLayout``, read from an open file: with ``os.pread`` on ``file_descriptor`` at
+    the layout's places, or, without places or descriptor, through h5py's ``read_direct_chunk``."""
+
+    layout: FrameLayout
+    file_descriptor: int = -1              # open descriptor of the layout's file (-1: read through ``dataset``)
+    dataset: h5py.Dataset | None = None    # the open h5py array, when there is one
+
+    @classmethod
+    def of(cls, dataset: h5py.Dataset) -> FrameChunks | None:
+        """``FrameChunks`` reading through h5py's open file, or ``None`` when ``FrameLayout.of`` is ``None``."""
+        layout = FrameLayout.of(dataset)
+        if layout is None:
+            return None
+        descriptor = -1 if layout.places is None else int(dataset.file.id.get_vfd_handle())
+        return cls(layout, descriptor, dataset)
+
+    @property
+    def frame_shape(self) -> tuple[int, ...]:
+        return self.layout.frame_shape
+
+    @property
+    def frame_nbytes(self) -> int:
+        return self.layout.frame_nbytes
 
     def stored_chunk(self, frame: int) -> bytes | None:
         """Frame ``frame``'s chunk as stored (Blosc stream, then the checksum), or ``None`` when it was never
         written, HDF5 skipped a filter for it, or it cannot be read. Valid while the file is open."""
-        if self.places is None:
+        if not 0 <= frame < self.layout.n_frames:
+            return None
+        places = self.layout.places
+        if places is None or self.file_descriptor < 0:
+            if self.dataset is None:
+                return None
             try:
                 filter_mask, chunk = self.dataset.id.read_direct_chunk((frame, *(0,) * len(self.frame_shape)))
             except Exception:  # an unreadable chunk index: let h5py report it
                 return None
             return chunk if filter_mask == 0 else None
-        place = self.places.get(frame)
+        place = places.get(frame)
         if place is None:
-            return None   # never written: h5py gives the fill value
-        offset, size, filter_mask = place
+            return None   # never written (h5py gives the fill value), or a filter skipped
+        offset, size = place
         try:
             chunk = os.pread(self.file_descriptor, size, offset)
         except OSError:
             return None
-        return chunk if filter_mask == 0 and len(chunk) == size else None
+        return chunk if len(chunk) == size else None
 
     def read_frame_into(self, frame: int, out: np.ndarray) -> bool:
         """Decode frame ``frame`` into ``out`` (C-contiguous, ``frame_nbytes`` bytes, any dtype of that size).
@@ -130,19 +191,52 @@ class FrameChunks:
         Returns ``False``, with ``out`` in an unspecified state, when the chunk is not one this module
         decodes or fails a check; the caller then reads through h5py (which raises for damaged data).
         """
-        if not 0 <= frame < self.n_frames or out.nbytes != self.frame_nbytes or not out.flags.c_contiguous:
+        if out.nbytes != self.frame_nbytes or not out.flags.c_contiguous:
             return False
         chunk = self.stored_chunk(frame)
-        if chunk is None or len(chunk) < BLOSC_HEADER_BYTES + 4:
-            return False   # h5py reads it, or raises; too short for a Blosc header and a checksum
-        if not checksum_matches(chunk):
-            return False   # h5py repeats the check (and accepts HDF5's legacy byte order) or raises
-        payload = memoryview(chunk)[:-4]
-        if blosc_sizes(payload) != (self.frame_nbytes, len(payload)):
-            return False
-        try:
-            # numcodecs decodes single-threaded in forked workers and in non-main threads (no global lock)
-            blosc.decompress(payload, out.reshape(-1).view(np.uint8))
-        except Exception:  # a damaged Blosc stream or a codec this build lacks
-            return False
-        return True
+        return chunk is not None and decode_chunk_into(chunk, out)
+
+
+def decode_chunk_into(chunk: bytes, out: np.ndarray) -> bool:
+    """Check a stored chunk (Blosc stream, then HDF5's Fletcher-32) and decode it into ``out`` (C-contiguous,
+    exactly the decoded size). ``False``, with ``out`` in an unspecified state, for anything unexpected."""
+    if len(chunk) < BLOSC_HEADER_BYTES + 4:
+        return False   # too short for a Blosc header and a checksum
+    if not checksum_matches(chunk):
+        return False   # h5py repeats the check (and accepts HDF5's legacy byte order) or raises
+    payload = memoryview(chunk)[:-4]
+    if blosc_sizes(payload) != (out.nbytes, len(payload)):
+        return False
+    try:
+        # numcodecs decodes single-threaded in forked workers and in non-main threads (no global lock)
+        blosc.decompress(payload, out.reshape(-1).view(np.uint8))
+    except Exception:  # a damaged Blosc stream or a codec this build lacks
+        return False
+    return True
+
+
+class FrameSource:
+    """One per-frame array of an episode (an image, depth map or mask), read one frame at a time into a buffer
+    the caller owns: decoded straight from its chunk when ``chunks`` is given; otherwise, and for any chunk
+    that fails a check there, by ``read_stored`` (the storage backend's read: it decodes the frame or raises
+    ``CorruptFileError`` naming the file)."""
+
+    __slots__ = ("chunks", "dtype", "frame_shape", "read_stored")
+
+    def __init__(self, frame_shape: tuple[int, ...], dtype: np.dtype, chunks: FrameChunks | None,
+                 read_stored: Callable[[int], np.ndarray]) -> None:
+        self.frame_shape = frame_shape   # e.g. (240, 320, 3) for an image
+        self.dtype = dtype               # stored dtype (uint8 for images and masks, uint16 for depth_um)
+        self.chunks, self.read_stored = chunks, read_stored
+
+    def read(self, frame: int) -> np.ndarray:
+        """Frame ``frame`` as a new array of the stored dtype."""
+        out = np.empty(self.frame_shape, self.dtype)
+        self.read_into(frame, out)
+        return out
+
+    def read_into(self, frame: int, out: np.ndarray) -> None:
+        """Frame ``frame`` into ``out``: C-contiguous, the stored frame shape, the stored dtype or one of its
+        size (uint16 micrometres into an int16 buffer keeps the bits)."""
+        if self.chunks is None or not self.chunks.read_frame_into(frame, out):
+            out[...] = self.read_stored(frame).view(out.dtype)

@@ -6,10 +6,16 @@ first read, keeps at most ``max_open`` open (least recently used closed first; n
 ``holding`` them), drops what it holds when pickled, and forgets handles it finds after a fork. So no h5py
 or zarr handle crosses a process boundary (h5py handles inherited across fork give corrupt reads: pytorch
 #11887), and a long run's memory stays bounded (openvla #39).
+
+Datasets of many more episodes than ``max_open`` would reopen an episode for nearly every sample of a
+shuffled batch; for local HDF5 files the reader therefore reads again through what it recorded on the
+first touch (``layouts.LayoutCache``: chunk places and small arrays, checked against the file's version)
+with descriptors of its own (``files.EpisodeFiles``), and opens h5py only for arrays not recorded yet.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
@@ -24,7 +30,9 @@ from univtac_data.storage.backend import EpisodeHandle
 from univtac_data.storage.hdf5_store import HDF5Handle
 from univtac_data.schema.fields import field_for_path
 
-from univtac_data.loaders.chunks import FrameChunks
+from univtac_data.loaders.chunks import FrameChunks, FrameLayout, FrameSource
+from univtac_data.loaders.files import DEFAULT_MAX_OPEN_FILES, CachedFile, EpisodeFiles
+from univtac_data.loaders.layouts import FileIdentity, LayoutCache
 from univtac_data.loaders.split import Split, check_split, split_of
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -117,8 +125,10 @@ def require_paths(refs: Sequence[EpisodeRef], paths: Sequence[str], datasets: Se
                              f"cameras {list(ref.cameras)})")
 
 
+@functools.lru_cache(maxsize=4096)   # called per sample and array: field_for_path's pattern matching took 13 us
 def is_whole_read(path: str) -> bool:
-    """Whether a loader should read ``path`` whole and keep it while the episode is open.
+    """Whether a loader should read ``path`` whole and keep it (while the episode is open, and in the layout
+    cache).
 
     Low-dimensional per-frame arrays and marker tracks are small (kilobytes per episode) but chunked
     over many frames, so reading one frame would decode the whole chunk again for every sample. Images
@@ -128,29 +138,18 @@ def is_whole_read(path: str) -> bool:
     return spec is None or spec.codec in ("small", "dense") or spec.sampling == "per_episode"
 
 
-class FrameSource:
-    """One per-frame array of an open episode (an image or depth map), read one frame at a time into a
-    buffer the caller owns. HDF5 frames are decoded straight from their chunk (``chunks.FrameChunks``);
-    anything else, and any chunk that fails a check there, goes through ``EpisodeHandle.read``, which
-    decodes it or raises ``CorruptFileError`` naming the file."""
+@functools.lru_cache(maxsize=4096)
+def is_bool(path: str) -> bool:
+    """Whether ``path`` is a bool field (stored as uint8 0 / 1; ``EpisodeHandle.read`` gives bool)."""
+    spec = field_for_path(path)
+    return spec is not None and spec.dtype == "bool"
 
-    def __init__(self, handle: EpisodeHandle, path: str) -> None:
-        self.handle, self.path = handle, path
-        shape, self.dtype = handle.layout(path)   # KeyError when absent (the loader checked paths first)
-        self.frame_shape = shape[1:]               # e.g. (240, 320, 3) for an image
-        self.chunks = _frame_chunks(handle, path)
 
-    def read(self, frame: int) -> np.ndarray:
-        """Frame ``frame`` as a new array of the stored dtype."""
-        out = np.empty(self.frame_shape, self.dtype)
-        self.read_into(frame, out)
-        return out
-
-    def read_into(self, frame: int, out: np.ndarray) -> None:
-        """Frame ``frame`` into ``out``: C-contiguous, the stored frame shape, the stored dtype or one of its
-        size (uint16 micrometres into an int16 buffer keeps the bits)."""
-        if self.chunks is None or not self.chunks.read_frame_into(frame, out):
-            out[...] = self.handle.read(self.path, frame).view(out.dtype)
+def handle_source(handle: EpisodeHandle, path: str) -> FrameSource:
+    """A ``FrameSource`` reading through an open handle: HDF5 chunks decoded directly (``chunks.FrameChunks``,
+    through h5py's own descriptor), anything else through ``handle.read``. Valid while ``handle`` is open."""
+    shape, dtype = handle.layout(path)   # KeyError when absent (the loader checked paths first)
+    return FrameSource(shape[1:], dtype, _frame_chunks(handle, path), lambda frame: handle.read(path, frame))
 
 
 def _frame_chunks(handle: EpisodeHandle, path: str) -> FrameChunks | None:
@@ -166,62 +165,127 @@ def _frame_chunks(handle: EpisodeHandle, path: str) -> FrameChunks | None:
 @dataclass
 class _Open:
     handle: EpisodeHandle
+    identity: FileIdentity | None                  # the file version the handle reads (local HDF5 only)
     whole: dict[str, np.ndarray] = field(default_factory=dict)
     frames: dict[str, FrameSource] = field(default_factory=dict)
 
 
 class EpisodeReader:
-    """Reads episodes of several datasets in the current process, through a bounded LRU of open handles.
+    """Reads episodes of several datasets in the current process.
 
-    Safe to hand to DataLoader workers by fork or by pickling: each process opens its own handles on
-    first use.
+    Owns a bounded LRU of open episode handles (``max_open``) and, for local HDF5 episodes, an
+    ``EpisodeFiles`` (``max_open_files`` descriptors of its own). The first read of an array of an HDF5
+    episode goes through h5py and records what later reads need in ``layouts`` (a ``LayoutCache``, which
+    ``sibling`` readers of other threads share); later reads of a checked file need no h5py handle at all:
+    ``os.pread`` at the recorded places, or the array kept whole. Safe to hand to DataLoader workers by fork
+    or by pickling: each process opens its own handles and descriptors, and starts with an empty cache.
+
+    Files are checked against the recorded version once per *generation*: each ``holding`` block (a batch),
+    or each read outside one.
     """
 
-    def __init__(self, datasets: Sequence[Dataset], max_open: int = 16) -> None:
+    def __init__(self, datasets: Sequence[Dataset], max_open: int = 16, *,
+                 max_open_files: int = DEFAULT_MAX_OPEN_FILES, layouts: LayoutCache | None = None) -> None:
         if max_open < 1:
             raise ValueError(f"max_open must be >= 1 (got {max_open})")
         self.datasets = list(datasets)
         self.max_open = max_open
+        self.layouts = layouts if layouts is not None else LayoutCache()
+        self.files = EpisodeFiles(self.layouts, max_open_files)
         self._open: OrderedDict[tuple[int, str], _Open] = OrderedDict()
+        self._retired: list[EpisodeHandle] = []   # handles of replaced files, closed once no batch holds them
+        self._paths: dict[tuple[int, str], str | None] = {}
         self._pid = os.getpid()
-        self._holds = 0  # nested ``holding()`` blocks: while > 0 no handle is closed
+        self._holds = 0  # nested ``holding()`` blocks: while > 0 no handle or descriptor is closed
+        self._generation = 0
         self.opens = 0  # handles opened by this process since creation; for tests and profiling
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_open"] = OrderedDict()
-        state["_holds"] = 0
+        state["_open"], state["_retired"], state["_holds"] = OrderedDict(), [], 0
         return state
 
-    def _entry(self, ref: EpisodeRef) -> _Open:
+    def sibling(self) -> EpisodeReader:
+        """A reader for another thread of this process: the same datasets, bounds and layout cache, its own
+        handles and descriptors (so no thread closes what another reads through)."""
+        self._check_process()
+        return EpisodeReader(self.datasets, self.max_open, max_open_files=self.files.max_open, layouts=self.layouts)
+
+    def _check_process(self) -> None:
         if self._pid != os.getpid():
             # Handles inherited across fork share the parent's file offsets and library state: reading
             # through them corrupts reads. Dropping them only releases this process's copies.
-            self._open = OrderedDict()
+            self._open, self._retired = OrderedDict(), []
+            self.files.close()   # plain descriptors: closing the child's copies leaves the parent's open
             self._pid = os.getpid()
             self.opens = 0
+
+    def _begin(self) -> None:
+        self._check_process()
+        if not self._holds:
+            self._generation += 1
+
+    def _file_path(self, ref: EpisodeRef) -> str | None:
+        """The episode's file when it is a local HDF5 file (the only kind whose layout is cached)."""
+        key = (ref.dataset, ref.episode_id)
+        if key not in self._paths:
+            ds = self.datasets[ref.dataset]
+            local_hdf5 = ds.info.storage == "hdf5" and ds.loc.is_local
+            self._paths[key] = os.path.join(ds.loc.root, ds.index[ref.episode_id].path) if local_hdf5 else None
+        return self._paths[key]
+
+    def _cached(self, ref: EpisodeRef) -> CachedFile | None:
+        path = self._file_path(ref)
+        if path is None:
+            return None
+        file, replaced = self.files.lookup(path, self._generation)
+        if replaced:   # an open handle reads the former file
+            entry = self._open.pop((ref.dataset, ref.episode_id), None)
+            if entry is not None:
+                self._retired.append(entry.handle)
+        if not self._holds:
+            self._close_least_recent()
+        return file
+
+    def _entry(self, ref: EpisodeRef) -> _Open:
         key = (ref.dataset, ref.episode_id)
         entry = self._open.get(key)
         if entry is not None:
             self._open.move_to_end(key)
             return entry
-        entry = _Open(self.datasets[ref.dataset].open_episode(ref.episode_id))
+        handle = self.datasets[ref.dataset].open_episode(ref.episode_id)
+        stat = handle.file_stat() if isinstance(handle, HDF5Handle) and self._file_path(ref) is not None else None
+        entry = _Open(handle, FileIdentity.of(stat) if stat is not None else None)
         self.opens += 1
         self._open[key] = entry
         if not self._holds:
             self._close_least_recent()
         return entry
 
+    def _record(self, ref: EpisodeRef, entry: _Open, *, frames: dict[str, FrameLayout | None] | None = None,
+                whole: dict[str, np.ndarray] | None = None) -> None:
+        path = self._file_path(ref)
+        if entry.identity is not None and path is not None:
+            self.layouts.record(path, entry.identity, frames=frames, whole=whole)
+
     def _close_least_recent(self) -> None:
         while len(self._open) > self.max_open:
             _, oldest = self._open.popitem(last=False)
             oldest.handle.close()
+        retired, self._retired = self._retired, []
+        for handle in retired:
+            handle.close()
+        self.files.trim()
 
     @contextmanager
     def holding(self) -> Iterator[None]:
-        """Within the block no handle is closed, so every ``FrameSource`` taken from this reader stays valid,
-        even when a batch spans more than ``max_open`` episodes (each is opened once per batch, not once per
-        array); on exit the least recently used are closed down to ``max_open`` again."""
+        """Within the block no handle or descriptor is closed, so every ``FrameSource`` taken from this reader
+        stays valid, even when a batch spans more than ``max_open`` episodes (each is opened once per batch,
+        not once per array), and each file is checked once; on exit the least recently used are closed down
+        to ``max_open`` and ``max_open_files`` again."""
+        self._check_process()
+        if not self._holds:
+            self._generation += 1
         self._holds += 1
         try:
             yield
@@ -232,33 +296,75 @@ class EpisodeReader:
 
     def read(self, ref: EpisodeRef, path: str, index: Any = ()) -> np.ndarray:
         """``path[index]`` of the episode in its logical dtype (see ``EpisodeHandle.read``). Paths for which
-        ``is_whole_read`` holds are read whole once and indexed in memory."""
-        entry = self._entry(ref)
+        ``is_whole_read`` holds are read whole once and indexed in memory (the array is read-only); one frame
+        (an int ``index``) of a local HDF5 array is read like ``frame_source``."""
+        self._begin()
         if is_whole_read(path):
-            array = entry.whole.get(path)
-            if array is None:
-                array = entry.handle.read(path)
-                entry.whole[path] = array
-            return array[index]
-        return entry.handle.read(path, index)
+            file = self._cached(ref)
+            array = file.layout.whole.get(path) if file is not None else None
+            part: np.ndarray = (array if array is not None else self._read_whole(ref, path))[index]
+            return part
+        if isinstance(index, (int, np.integer)) and self._file_path(ref) is not None:
+            frame: np.ndarray = self._frame_source(ref, path).read(int(index))
+            return np.not_equal(frame, 0) if is_bool(path) else frame
+        return self._entry(ref).handle.read(path, index)
+
+    def _read_whole(self, ref: EpisodeRef, path: str) -> np.ndarray:
+        entry = self._entry(ref)
+        array = entry.whole.get(path)
+        if array is None:
+            array = entry.whole[path] = entry.handle.read(path)
+            self._record(ref, entry, whole={path: array})
+        return array
 
     def frame_source(self, ref: EpisodeRef, path: str) -> FrameSource:
-        """A ``FrameSource`` for per-frame array ``path`` of the episode, valid while its handle stays open
-        (at most ``max_open`` other episodes later)."""
+        """A ``FrameSource`` for per-frame array ``path`` of the episode, valid while its handle or descriptor
+        stays open: within a ``holding`` block, or outside one until ``max_open`` other episodes (or
+        ``max_open_files`` other files) have been read."""
+        self._begin()
+        return self._frame_source(ref, path)
+
+    def _frame_source(self, ref: EpisodeRef, path: str) -> FrameSource:
+        file = self._cached(ref)
+        if file is not None:
+            source = file.sources.get(path) or self._cached_source(ref, file, path)
+            if source is not None:
+                return source
         entry = self._entry(ref)
         source = entry.frames.get(path)
         if source is None:
-            source = entry.frames[path] = FrameSource(entry.handle, path)
+            source = entry.frames[path] = handle_source(entry.handle, path)
+            self._record(ref, entry, frames={path: source.chunks.layout if source.chunks is not None else None})
+        return source
+
+    def _cached_source(self, ref: EpisodeRef, file: CachedFile, path: str) -> FrameSource | None:
+        layout = file.layout.frames.get(path)
+        if layout is None or layout.places is None:
+            return None   # not recorded yet, or only h5py reads it
+        descriptor = self.files.descriptor(file)
+        if descriptor < 0:
+            return None
+        source = FrameSource(layout.frame_shape, layout.dtype, FrameChunks(layout, descriptor),
+                             lambda frame: self._entry(ref).handle.read(path, frame))
+        file.sources[path] = source
         return source
 
     @property
     def n_open(self) -> int:
-        """Handles open in this process now."""
+        """Episode handles (h5py or zarr) open in this process now."""
         return len(self._open) if self._pid == os.getpid() else 0
 
+    @property
+    def n_files(self) -> int:
+        """Descriptors of this reader's own open in this process now (besides the handles)."""
+        return self.files.n_open if self._pid == os.getpid() else 0
+
     def close(self) -> None:
-        """Close every handle this process opened."""
+        """Close every handle and descriptor this process opened."""
         if self._pid == os.getpid():
             for entry in self._open.values():
                 entry.handle.close()
-        self._open = OrderedDict()
+            for handle in self._retired:
+                handle.close()
+        self._open, self._retired = OrderedDict(), []
+        self.files.close()

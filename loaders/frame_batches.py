@@ -5,7 +5,9 @@ process must write it to fresh shared memory that the kernel maps page by page (
 on a 2-core VM, as much as half the decode itself; ``benchmarks/loader_throughput.py``). Blosc decodes
 without the GIL, so threads decode in parallel into batch tensors the training process owns, and
 nothing crosses a process boundary. Each thread reads through its own ``EpisodeReader`` (its own
-handles), so no handle is shared or closed under another thread.
+handles and descriptors), so none is shared or closed under another thread; the readers share the
+dataset's layout cache, so an episode of a large dataset is opened with h5py about once per pad it is
+read for (in the first epoch), not once per sample (``layouts.py``).
 
 Batch memory is reused once the training loop has dropped every tensor of a batch (``BatchBuffers``).
 Batches have the dataset's layout: with ``TactileFrameDataset(..., compact=True, channels_last=True)`` (the
@@ -70,11 +72,11 @@ class FrameBatchLoader:
 
     def __iter__(self) -> Iterator[Sample]:
         batches = iter(self._index_batches())
-        local, readers = threading.local(), []
+        local, readers = threading.local(), list[EpisodeReader]()
 
         def load(indices: list[int]) -> Sample:
             if not hasattr(local, "reader"):   # per thread: handles used and closed by that thread only
-                local.reader = EpisodeReader(self.dataset.datasets, self.dataset.config.max_open_episodes)
+                local.reader = self.dataset.reader.sibling()   # shares the dataset's layout cache
                 local.buffers = BatchBuffers()
                 readers.append(local.reader)
             return self.dataset.read_batch(indices, reader=local.reader, buffers=local.buffers)

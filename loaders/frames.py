@@ -59,6 +59,8 @@ import torch
 from univtac_data.loaders.buffers import BatchBuffers
 from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, FrameSource, PathLike, as_path_list, open_selected, \
     require_paths
+from univtac_data.loaders.files import DEFAULT_MAX_OPEN_FILES
+from univtac_data.loaders.layouts import DEFAULT_BUDGET_MIB, LayoutCache
 from univtac_data.loaders.sampler import FrameTable
 from univtac_data.loaders.split import Split
 
@@ -94,6 +96,8 @@ class TactileFrameConfig:
     val_fraction: float = 0.1                  # share of episodes in "val"
     split_seed: int = 0                        # another seed gives another (still episode-level) split
     max_open_episodes: int = 16                # open handles kept per process (LRU)
+    max_open_files: int = DEFAULT_MAX_OPEN_FILES  # plain descriptors kept per reader (per thread; LRU)
+    layout_cache_mib: float = DEFAULT_BUDGET_MIB  # chunk places and small arrays kept per process (LRU); 0: none
     compact: bool = False                      # uint8 images and int16 um depth; convert with to_float(batch)
     channels_last: bool = False                # images as (3, H, W) views of (H, W, 3) memory; channels_last batches
 
@@ -101,6 +105,9 @@ class TactileFrameConfig:
         unknown = [f for f in self.fields if f not in FRAME_FIELDS]
         if unknown or not self.fields:
             raise ValueError(f"fields must be a non-empty subset of {sorted(FRAME_FIELDS)} (got {list(self.fields)})")
+        if self.max_open_episodes < 1 or self.max_open_files < 1 or not self.layout_cache_mib >= 0:
+            raise ValueError(f"need max_open_episodes >= 1, max_open_files >= 1, layout_cache_mib >= 0 (got "
+                             f"{self.max_open_episodes}, {self.max_open_files}, {self.layout_cache_mib})")
         for name in ("compact", "channels_last"):   # a string such as "false" would read as True
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be a bool (got {getattr(self, name)!r})")
@@ -128,12 +135,14 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
                  transform: Callable[[Sample], Sample] | None = None, episodes: Sequence[str] | None = None,
                  names: Sequence[str] | str | None = None, split: Split = "all", val_fraction: float = 0.1,
                  split_seed: int = 0, max_open_episodes: int = 16, compact: bool = False,
-                 channels_last: bool = False) -> None:
+                 channels_last: bool = False, max_open_files: int = DEFAULT_MAX_OPEN_FILES,
+                 layout_cache_mib: float = DEFAULT_BUDGET_MIB) -> None:
         config = TactileFrameConfig(fields=tuple(fields), sensors=_tuple(sensors), pads=_tuple(pads),
                                     names=_tuple(names), episodes=_tuple(episodes), split=split,
                                     val_fraction=val_fraction, split_seed=split_seed,
                                     max_open_episodes=max_open_episodes, compact=compact,
-                                    channels_last=channels_last)
+                                    channels_last=channels_last, max_open_files=max_open_files,
+                                    layout_cache_mib=layout_cache_mib)
         self._setup(as_path_list(path_or_paths), config, transform)
 
     @classmethod
@@ -156,7 +165,9 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
             require_paths([ref], [f"tactile/{pad}/{FRAME_FIELDS[f]}" for pad in ep_pads for f in config.fields],
                           self.datasets)
         self.table = FrameTable([ref.n_frames for ref in self.episodes], pads)
-        self.reader = EpisodeReader(self.datasets, max_open=config.max_open_episodes)
+        self.reader = EpisodeReader(self.datasets, max_open=config.max_open_episodes,
+                                    max_open_files=config.max_open_files,
+                                    layouts=LayoutCache(int(config.layout_cache_mib * 2**20)))
         self._sizes = {ref.sensor: self.datasets[ref.dataset].sensor(ref.sensor) for ref in self.episodes}
 
     def __len__(self) -> int:
@@ -185,7 +196,8 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
     def read_raw(self, index: int) -> tuple[EpisodeRef, int, str, dict[str, np.ndarray]]:
         """``(episode, frame, pad, arrays)``: the stored arrays of sample ``index`` before conversion."""
         ref, frame, pad = self._row(index)
-        return ref, frame, pad, read_fields(self.reader, ref, frame, pad, self.config.fields)
+        with self.reader.holding():
+            return ref, frame, pad, read_fields(self.reader, ref, frame, pad, self.config.fields)
 
     def read_batch(self, indices: Sequence[int], reader: EpisodeReader | None = None,
                    buffers: BatchBuffers | None = None) -> Sample:
@@ -234,7 +246,8 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
     def __getitem__(self, index: int | Sequence[int]) -> Sample:
         if isinstance(index, (list, tuple, range, np.ndarray)):
             return self.read_batch(index)   # a list from a batch sampler: DataLoader(batch_size=None, ...)
-        return self._sample(index, self.reader)
+        with self.reader.holding():   # one check of the episode's file for all the sample's arrays
+            return self._sample(index, self.reader)
 
     def _sample(self, index: int, reader: EpisodeReader) -> Sample:
         ref, frame, pad = self._row(index)

@@ -13,6 +13,98 @@ from univtac_data.schema.sensors import get_sensor
 
 MINI = get_sensor("gelsight_mini")
 
+
+# The closed-form entries in array code, as the module computed them before it was compiled: an independent
+# oracle for the compiled kernels (gap_primitives.lower_to_entry).
+def _ref_origin(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, k: int) -> np.ndarray:
+    """Component ``k`` (ny, nx) of the line origins in the object's frame: (rot.T @ (x - px, y - py, -pz))[k].
+
+    An outer sum of a row and a column term, so the box and cylinder read one component at a time and build
+    no (ny, nx, 3) array (the same operations in the same order as the 3-vector form: bit-identical).
+    """
+    return ((x - pos[0]) * rot[0, k])[None, :] + ((y - pos[1]) * rot[1, k])[:, None] - pos[2] * rot[2, k]
+
+
+def ref_quadratic_entry(a: float | np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roots (t_in, t_out) of a t^2 + b t + c = 0 (a > 0), +inf/-inf where there is none."""
+    disc = b * b - 4.0 * a * c
+    ok = disc >= 0.0
+    sq = np.sqrt(np.where(ok, disc, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in = np.where(ok, (-b - sq) / (2.0 * a), np.inf)
+        t_out = np.where(ok, (-b + sq) / (2.0 * a), -np.inf)
+    return t_in, t_out
+
+
+def ref_quadratic_first_root(a: float, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """t_in of :func:`ref_quadratic_entry` alone (the same arithmetic), for callers that need no exit."""
+    disc = b * b - 4.0 * a * c
+    ok = disc >= 0.0
+    np.sqrt(disc, out=disc, where=ok)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in = (-b - disc) / (2.0 * a)
+    t_in[~ok] = np.inf
+    return t_in
+
+
+def ref_ellipsoid_entry(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Ellipsoid with semi-axes ``radii`` (3,) mm (a sphere when equal)."""
+    o = np.empty((y.size, x.size, 3))
+    for k in range(3):  # scaled to the unit sphere as they are written, one pass over (ny, nx, 3) fewer
+        np.divide(_ref_origin(x, y, rot, pos, k), radii[k], out=o[..., k])
+    d = rot[2] / radii
+    return ref_quadratic_first_root(float(d @ d), 2.0 * (o @ d), np.einsum("ijk,ijk->ij", o, o) - 1.0)
+
+
+def ref_slab(o: np.ndarray, d: float, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    if abs(d) < 1e-12:
+        inside = (o >= lo) & (o <= hi)
+        return np.where(inside, -np.inf, np.inf), np.where(inside, np.inf, -np.inf)
+    t1, t2 = (lo - o) / d, (hi - o) / d
+    return np.minimum(t1, t2), np.maximum(t1, t2)
+
+
+def ref_box_entry(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Box with half-sizes ``half`` (3,) mm."""
+    d = rot[2]
+    # max(-inf, a) is a: the first slab is the running interval, the other two narrow it in place
+    t_in, t_out = ref_slab(_ref_origin(x, y, rot, pos, 0), float(d[0]), -half[0], half[0])
+    for k in (1, 2):
+        a, b = ref_slab(_ref_origin(x, y, rot, pos, k), float(d[k]), -half[k], half[k])
+        np.maximum(t_in, a, out=t_in)
+        np.minimum(t_out, b, out=t_out)
+    t_in[t_in > t_out] = np.inf
+    return t_in
+
+
+def ref_tube(o0: np.ndarray, o1: np.ndarray, d: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Infinite cylinder about the local z axis; ``o0``, ``o1`` (ny, nx) local x and y of the line origins."""
+    a = float(d[0] ** 2 + d[1] ** 2)
+    c = o0**2 + o1**2 - radius * radius
+    if a < 1e-12:
+        inside = c <= 0.0
+        return np.where(inside, -np.inf, np.inf), np.where(inside, np.inf, -np.inf)
+    return ref_quadratic_entry(a, 2.0 * (o0 * d[0] + o1 * d[1]), c)
+
+
+def ref_cylinder_entry(
+    x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, radius: float, half_height: float
+) -> np.ndarray:
+    """Solid cylinder along the local z axis (MuJoCo's convention)."""
+    d = rot[2]
+    a_in, a_out = ref_tube(_ref_origin(x, y, rot, pos, 0), _ref_origin(x, y, rot, pos, 1), d, radius)
+    b_in, b_out = ref_slab(_ref_origin(x, y, rot, pos, 2), float(d[2]), -half_height, half_height)
+    t_in, t_out = np.maximum(a_in, b_in), np.minimum(a_out, b_out)
+    t_in[t_in > t_out] = np.inf
+    return t_in
+
+
+def ref_capsule_entry(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, radius: float,
+                      half_length: float) -> np.ndarray:
+    caps = [ref_ellipsoid_entry(x, y, rot, pos + rot[:, 2] * s * half_length, np.full(3, radius)) for s in (-1.0, 1.0)]
+    return np.minimum(ref_cylinder_entry(x, y, rot, pos, radius, half_length), np.minimum(*caps))
+
+
 # The pad site is flipped (pad normal = world -z) and shifted, so the frame transform is exercised.
 # An L-shaped (non-convex) mesh: a 6 x 6 x 2 mm slab with a 2 mm step on its lower face.
 SCENE = """
@@ -260,15 +352,15 @@ def _brute_force_gap(model: mujoco.MjModel, data: mujoco.MjData, names: list[str
         size = model.geom_size[g.id] * 1000.0
         gtype = model.geom_type[g.id]
         if gtype == mujoco.mjtGeom.mjGEOM_SPHERE:
-            entry = gp.ellipsoid_entry(x, y, rot, pos, np.full(3, size[0]))
+            entry = ref_ellipsoid_entry(x, y, rot, pos, np.full(3, size[0]))
         elif gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-            entry = gp.ellipsoid_entry(x, y, rot, pos, size)
+            entry = ref_ellipsoid_entry(x, y, rot, pos, size)
         elif gtype == mujoco.mjtGeom.mjGEOM_BOX:
-            entry = gp.box_entry(x, y, rot, pos, size)
+            entry = ref_box_entry(x, y, rot, pos, size)
         elif gtype == mujoco.mjtGeom.mjGEOM_CYLINDER:
-            entry = gp.cylinder_entry(x, y, rot, pos, size[0], size[1])
+            entry = ref_cylinder_entry(x, y, rot, pos, size[0], size[1])
         elif gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
-            entry = gp.capsule_entry(x, y, rot, pos, size[0], size[1])
+            entry = ref_capsule_entry(x, y, rot, pos, size[0], size[1])
         else:
             mid = model.geom_dataid[g.id]
             va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
@@ -292,3 +384,30 @@ def test_gap_field_matches_brute_force_on_random_scenes(seed: int) -> None:
     assert near.sum() > 1000  # the scene does reach below the cut
     np.testing.assert_array_equal(gap < GAP_FAR_MM, near)
     np.testing.assert_allclose(gap[near], ref[near], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_convex_entries_match_the_array_code(seed: int) -> None:
+    """Random poses, including axis-aligned ones (the degenerate slab and tube branches)."""
+    rng = np.random.default_rng(seed)
+    grid = sensor_grid(MINI, 2)
+    x, y = grid.x_mm, grid.y_mm
+    for k in range(12):
+        if k % 4 == 0:
+            rot = np.eye(3)[[1, 2, 0]] if k % 8 else np.eye(3)   # an axis along the line: a != 0 or a == 0
+        else:
+            q = rng.normal(size=4)
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, q / np.linalg.norm(q))
+            rot = rot.reshape(3, 3)
+        pos = np.array([rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(-2, 5)])
+        size = rng.uniform(0.5, 5.0, 3)
+        pairs = [(gp.ellipsoid_entry(x, y, rot, pos, size), ref_ellipsoid_entry(x, y, rot, pos, size)),
+                 (gp.box_entry(x, y, rot, pos, size), ref_box_entry(x, y, rot, pos, size)),
+                 (gp.cylinder_entry(x, y, rot, pos, size[0], size[1]), ref_cylinder_entry(x, y, rot, pos, size[0], size[1])),
+                 (gp.capsule_entry(x, y, rot, pos, size[0], size[1]), ref_capsule_entry(x, y, rot, pos, size[0], size[1]))]
+        for got, want in pairs:
+            np.testing.assert_array_equal(np.isfinite(got), np.isfinite(want))
+            hit = np.isfinite(want)
+            assert hit.any() or k % 4 == 0
+            np.testing.assert_allclose(got[hit], want[hit], rtol=0, atol=1e-9)

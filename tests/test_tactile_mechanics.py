@@ -228,3 +228,16 @@ def test_upsampled_pressure_is_the_full_image_computation_in_the_contact_box() -
     interior[100:140, 130:200] = True
     expected = np.sqrt(upsample_linear(coarse**2, step, shape))
     assert np.allclose(pressure[interior & fine_mask], expected[interior & fine_mask])
+
+
+@pytest.mark.parametrize("shape", [(150, 170), (40, 9), (7, 60), (3, 3)])
+def test_compiled_gaussian_blur_equals_scipy(shape: tuple[int, int]) -> None:
+    from scipy.ndimage import gaussian_filter
+
+    from univtac_data.generators.tactile.contact_geometric import gaussian_blur
+
+    rng = np.random.default_rng(3)
+    field = (rng.random(shape) * (rng.random(shape) > 0.5)).astype(np.float32)
+    for sigmas in ((4.3, 4.4), (2.15, 1.0), (0.4, 0.5)):
+        want = gaussian_filter(field, sigmas, mode="constant", truncate=3.0)
+        assert np.abs(gaussian_blur(field, *sigmas) - want).max() <= 3e-7

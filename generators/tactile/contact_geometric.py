@@ -16,8 +16,10 @@ Work is confined to the overlap's bounding box grown by 4 sigma, so the cost sca
 
 from __future__ import annotations
 
+from functools import lru_cache
+
+import numba
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 from univtac_data.schema.sensors import Material
 
@@ -50,10 +52,59 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
     d = o_single
     for level in range(config.smooth_levels):
         s = sigma / (2.0**level)
-        d = np.maximum(gaussian_filter(d, (s / grid.dy_mm, s / grid.dx_mm), mode="constant", truncate=3.0), o_single)
+        d = np.maximum(gaussian_blur(d, s / grid.dy_mm, s / grid.dx_mm), o_single)
     depth[win] = np.maximum(d, o)  # the overlap itself stays exact (float64)
     area = float(np.count_nonzero(mask)) * grid.cell_area_mm2
     e_star = material.youngs_modulus_mpa / (1.0 - material.poisson_ratio**2)
     stiffness = 2.0 * e_star / (np.pi * np.sqrt(area / np.pi))
     pressure[win] = stiffness * o
     return ContactResult(depth, pressure, mask, float(pressure.sum() * grid.cell_area_mm2))
+
+
+TRUNCATE_SIGMAS = 3.0  # the Gaussian is cut at 3 sigma (0.3 % of its peak)
+
+
+def gaussian_blur(field: np.ndarray, sigma_rows_px: float, sigma_cols_px: float) -> np.ndarray:
+    """(h, w) float32 field blurred by a Gaussian of the given sigmas (px), zero outside the field, cut at
+    ``TRUNCATE_SIGMAS``: scipy's ``gaussian_filter(field, (sigma_rows_px, sigma_cols_px), mode="constant",
+    truncate=3.0)`` to float32 rounding (tested), compiled: 3x faster on the skirt's windows."""
+    return _separable_blur(np.ascontiguousarray(field, dtype=np.float32), _gaussian_weights(sigma_rows_px),
+                           _gaussian_weights(sigma_cols_px))
+
+
+@lru_cache(maxsize=32)
+def _gaussian_weights(sigma_px: float) -> np.ndarray:
+    """Normalised float32 weights of a Gaussian of ``sigma_px`` over offsets -r..r, r = int(3 sigma + 0.5)."""
+    radius = int(TRUNCATE_SIGMAS * sigma_px + 0.5)
+    offsets = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 / (sigma_px * sigma_px) * offsets.astype(np.float64) ** 2)
+    weights = (weights / weights.sum()).astype(np.float32)
+    weights.setflags(write=False)
+    return weights
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _separable_blur(field: np.ndarray, row_weights: np.ndarray, col_weights: np.ndarray) -> np.ndarray:  # pragma: no cover
+    # along the rows' axis first, then along each row, every inner loop over one contiguous row view so that it
+    # vectorises (scipy's correlate1d runs a scalar loop per output); the first pass writes into rows padded
+    # with zeros, so the second needs no bounds
+    h, w = field.shape
+    r_rows, r_cols = (row_weights.size - 1) // 2, (col_weights.size - 1) // 2
+    across = np.zeros((h, w + 2 * r_cols), np.float32)
+    for i in range(h):
+        row = across[i, r_cols : r_cols + w]
+        for k in range(row_weights.size):
+            source = i + k - r_rows
+            if 0 <= source < h:
+                weight = row_weights[k]
+                source_row = field[source]
+                for j in range(w):
+                    row[j] += weight * source_row[j]
+    out = np.zeros((h, w), np.float32)
+    for i in range(h):
+        out_row, padded = out[i], across[i]
+        for k in range(col_weights.size):
+            weight = col_weights[k]
+            for j in range(w):
+                out_row[j] += weight * padded[j + k]
+    return out

@@ -175,24 +175,28 @@ def simulate_frame(
     gap = np.asarray(gap_mm, dtype=np.float64)
     if gap.shape != (h, w):
         raise ValueError(f"gap_mm must be (H, W) = ({h}, {w}) for sensor {profile.name!r} (got {gap.shape})")
-    if np.isnan(gap).any():
-        raise ValueError("gap_mm contains NaN")
     gap = np.minimum(gap, GAP_FAR_MM)
+    if np.isnan(gap.sum()):   # NaN survives the clamp and the sum; one pass, no mask
+        raise ValueError("gap_mm contains NaN")
     material = profile.material
 
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
     result = solve_contact(_solver_gap(gap, step), grid, material, contact_cfg, previous)
-    overlap = np.maximum(-gap, 0.0)
-    surface = upsample_linear(result.depth_mm, step, (h, w))
-    depth = np.maximum(surface, overlap)
-    if step == 1:
-        contact = result.contact_mask
+    if contact_cfg.method == "geometric":
+        # on the image grid already: the depth holds the overlap and the pressure is zero off the mask
+        depth, contact, pressure = result.depth_mm, result.contact_mask, result.pressure_mpa
     else:
-        # the solver's mask is per solver cell; on the image grid, contact is where the gel meets the object
-        contact = (overlap > 0.0) & (overlap >= surface - CONTACT_TOL_MM)
-    pressure = _upsample_pressure(result.pressure_mpa, step, contact)
+        overlap = np.maximum(-gap, 0.0)
+        surface = upsample_linear(result.depth_mm, step, (h, w))
+        depth = np.maximum(surface, overlap)
+        if step == 1:
+            contact = result.contact_mask
+        else:
+            # the solver's mask is per solver cell; on the image grid, contact is where the gel meets the object
+            contact = (overlap > 0.0) & (overlap >= surface - CONTACT_TOL_MM)
+        pressure = _upsample_pressure(result.pressure_mpa, step, contact)
 
     shear_step = step * max(1, -(-config.shear_step // step))
     grid_sh = sensor_grid(profile, shear_step)

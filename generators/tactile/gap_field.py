@@ -18,7 +18,7 @@ when MuJoCo itself registers a contact.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -26,16 +26,17 @@ import numpy as np
 
 from .contact import GAP_FAR_MM
 from .gap_primitives import (
+    BOX,
+    CYLINDER,
+    ELLIPSOID,
     SLACK_MM,
     Extent,
-    box_entry,
     box_extent,
-    cylinder_entry,
     cylinder_extent,
-    ellipsoid_entry,
     ellipsoid_extent,
+    lower_to_entry,
     mesh_triangles,
-    triangle_hits,
+    rasterise_lowest,
 )
 from .sensor_model import SensorGrid
 
@@ -105,17 +106,17 @@ def gap_field(
         if gtype == mujoco.mjtGeom.mjGEOM_MESH:
             triangles.append(mesh_triangles(rot, pos, *_mesh_mm(model, gid)))
             continue
-        for extent, entry_of in _convex_parts(gid, gtype, rot, pos, model.geom_size[gid] * M_TO_MM, z_max):
+        for extent, kind, part_pos, part_size in _convex_parts(gid, gtype, rot, pos, model.geom_size[gid] * M_TO_MM,
+                                                               z_max):
             win = _window(grid, extent)
             if win is not None:
-                np.minimum(gap[win], entry_of(grid.x_mm[win[1]], grid.y_mm[win[0]]), out=gap[win])
+                lower_to_entry(gap[win], grid.x_mm[win[1]], grid.y_mm[win[0]], kind, rot, part_pos, part_size)
     if triangles:  # all mesh geoms in one scan: the per-call set-up costs more than a small mesh's cells
-        cells, z = triangle_hits(grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
-        np.minimum.at(gap.ravel(), cells, z)
+        rasterise_lowest(gap, grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
     return np.where(gap > cutoff_mm, GAP_FAR_MM, gap)
 
 
-EntryOf = Callable[[np.ndarray, np.ndarray], np.ndarray]
+ConvexPart = tuple[Extent, int, np.ndarray, np.ndarray]  # xy box, kind, centre (3,) mm, size (3,) mm
 
 
 def _mesh_mm(model: mujoco.MjModel, gid: int) -> tuple[np.ndarray, np.ndarray]:
@@ -128,20 +129,20 @@ def _mesh_mm(model: mujoco.MjModel, gid: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _convex_parts(
     gid: int, gtype: int, rot: np.ndarray, pos: np.ndarray, size: np.ndarray, z_max: float,
-) -> list[tuple[Extent, EntryOf]]:
+) -> list[ConvexPart]:
     """Convex pieces of primitive geom ``gid`` (pose ``rot``, ``pos`` and MJCF ``size`` in mm, pad frame) that
-    reach below ``z_max`` mm: each piece's xy box there and its entry height as a function of a window's cell
-    centres (x, y). A capsule is its cylinder and two caps, so each is evaluated under its own box only."""
+    reach below ``z_max`` mm: each piece's xy box there, its kind for ``lower_to_entry`` (same ``rot``), centre
+    and size. A capsule is its cylinder and two caps, so each is evaluated under its own box only."""
     if gtype == mujoco.mjtGeom.mjGEOM_SPHERE or gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-        pieces = [_ellipsoid_piece(rot, pos, np.full(3, size[0]) if gtype == mujoco.mjtGeom.mjGEOM_SPHERE else size,
-                                   z_max)]
+        radii = np.full(3, size[0]) if gtype == mujoco.mjtGeom.mjGEOM_SPHERE else np.asarray(size, dtype=np.float64)
+        pieces = [_ellipsoid_piece(rot, pos, radii, z_max)]
     elif gtype == mujoco.mjtGeom.mjGEOM_BOX:
         extent = box_extent(rot, pos, size, z_max)
-        pieces = [None if extent is None else (extent, lambda x, y: box_entry(x, y, rot, pos, size))]
+        pieces = [None if extent is None else (extent, BOX, pos, np.asarray(size, dtype=np.float64))]
     elif gtype == mujoco.mjtGeom.mjGEOM_CYLINDER or gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
         radius, half = float(size[0]), float(size[1])
         extent = cylinder_extent(rot, pos, radius, half, z_max)
-        pieces = [None if extent is None else (extent, lambda x, y: cylinder_entry(x, y, rot, pos, radius, half))]
+        pieces = [None if extent is None else (extent, CYLINDER, pos, np.array([radius, half, 0.0]))]
         if gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
             pieces += [_ellipsoid_piece(rot, pos + rot[:, 2] * s * half, np.full(3, radius), z_max) for s in (-1.0, 1.0)]
     else:
@@ -149,9 +150,9 @@ def _convex_parts(
     return [p for p in pieces if p is not None]
 
 
-def _ellipsoid_piece(rot: np.ndarray, pos: np.ndarray, radii: np.ndarray, z_max: float) -> tuple[Extent, EntryOf] | None:
+def _ellipsoid_piece(rot: np.ndarray, pos: np.ndarray, radii: np.ndarray, z_max: float) -> ConvexPart | None:
     extent = ellipsoid_extent(rot, pos, radii, z_max)
-    return None if extent is None else (extent, lambda x, y: ellipsoid_entry(x, y, rot, pos, radii))
+    return None if extent is None else (extent, ELLIPSOID, pos, radii)
 
 
 def _window(grid: SensorGrid, extent: Extent) -> tuple[slice, slice] | None:

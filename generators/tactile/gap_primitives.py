@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 __all__ = [
     "box_entry", "box_extent", "capsule_entry", "capsule_extent", "cylinder_entry", "cylinder_extent",
-    "ellipsoid_entry", "ellipsoid_extent", "mesh_entry", "mesh_triangles", "triangle_hits", "union_extent",
+    "ellipsoid_entry", "ellipsoid_extent", "mesh_entry", "mesh_triangles", "rasterise_lowest", "union_extent",
 ]
 
 Extent = tuple[float, float, float, float]
@@ -29,87 +30,100 @@ Extent = tuple[float, float, float, float]
 SLACK_MM = 1e-5
 
 
-def _local_origin(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, k: int) -> np.ndarray:
-    """Component ``k`` (ny, nx) of the line origins in the object's frame: (rot.T @ (x - px, y - py, -pz))[k].
-
-    An outer sum of a row and a column term, so the box and cylinder read one component at a time and build
-    no (ny, nx, 3) array (the same operations in the same order as the 3-vector form: bit-identical).
-    """
-    return ((x - pos[0]) * rot[0, k])[None, :] + ((y - pos[1]) * rot[1, k])[:, None] - pos[2] * rot[2, k]
+ELLIPSOID, BOX, CYLINDER = 0, 1, 2  # convex primitive kinds of ``lower_to_entry``
 
 
-def _quadratic_entry(a: float | np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Roots (t_in, t_out) of a t^2 + b t + c = 0 (a > 0), +inf/-inf where there is none."""
-    disc = b * b - 4.0 * a * c
-    ok = disc >= 0.0
-    sq = np.sqrt(np.where(ok, disc, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in = np.where(ok, (-b - sq) / (2.0 * a), np.inf)
-        t_out = np.where(ok, (-b + sq) / (2.0 * a), -np.inf)
-    return t_in, t_out
+def lower_to_entry(heights: np.ndarray, x: np.ndarray, y: np.ndarray, kind: int, rot: np.ndarray, pos: np.ndarray,
+                   size: np.ndarray) -> None:
+    """Lower ``heights`` (ny, nx) mm (any 2-D view) to the entry height of a convex primitive where that is lower:
+    an ellipsoid (``size`` = semi-axes (3,) mm), a box (half-sizes (3,) mm) or a cylinder along its local z
+    (radius, half-height, unused) mm, with pose ``rot``, ``pos`` (pad frame) over cell centres ``x`` (nx,),
+    ``y`` (ny,) mm."""
+    _lower_convex(heights, np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), kind,
+                  np.ascontiguousarray(rot, dtype=np.float64), np.ascontiguousarray(pos, dtype=np.float64),
+                  np.ascontiguousarray(size, dtype=np.float64))
 
 
-def _quadratic_first_root(a: float, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """t_in of :func:`_quadratic_entry` alone (the same arithmetic), for callers that need no exit."""
-    disc = b * b - 4.0 * a * c
-    ok = disc >= 0.0
-    np.sqrt(disc, out=disc, where=ok)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in = (-b - disc) / (2.0 * a)
-    t_in[~ok] = np.inf
-    return t_in
+def _entry(x: np.ndarray, y: np.ndarray, kind: int, rot: np.ndarray, pos: np.ndarray, size: np.ndarray) -> np.ndarray:
+    out = np.full((y.size, x.size), np.inf)
+    lower_to_entry(out, x, y, kind, rot, pos, size)
+    return out
 
 
 def ellipsoid_entry(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Ellipsoid with semi-axes ``radii`` (3,) mm (a sphere when equal)."""
-    o = np.empty((y.size, x.size, 3))
-    for k in range(3):  # scaled to the unit sphere as they are written, one pass over (ny, nx, 3) fewer
-        np.divide(_local_origin(x, y, rot, pos, k), radii[k], out=o[..., k])
-    d = rot[2] / radii
-    return _quadratic_first_root(float(d @ d), 2.0 * (o @ d), np.einsum("ijk,ijk->ij", o, o) - 1.0)
-
-
-def _slab(o: np.ndarray, d: float, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
-    if abs(d) < 1e-12:
-        inside = (o >= lo) & (o <= hi)
-        return np.where(inside, -np.inf, np.inf), np.where(inside, np.inf, -np.inf)
-    t1, t2 = (lo - o) / d, (hi - o) / d
-    return np.minimum(t1, t2), np.maximum(t1, t2)
+    return _entry(x, y, ELLIPSOID, rot, pos, radii)
 
 
 def box_entry(x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, half: np.ndarray) -> np.ndarray:
     """Box with half-sizes ``half`` (3,) mm."""
-    d = rot[2]
-    # max(-inf, a) is a: the first slab is the running interval, the other two narrow it in place
-    t_in, t_out = _slab(_local_origin(x, y, rot, pos, 0), float(d[0]), -half[0], half[0])
-    for k in (1, 2):
-        a, b = _slab(_local_origin(x, y, rot, pos, k), float(d[k]), -half[k], half[k])
-        np.maximum(t_in, a, out=t_in)
-        np.minimum(t_out, b, out=t_out)
-    t_in[t_in > t_out] = np.inf
-    return t_in
-
-
-def _tube(o0: np.ndarray, o1: np.ndarray, d: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Infinite cylinder about the local z axis; ``o0``, ``o1`` (ny, nx) local x and y of the line origins."""
-    a = float(d[0] ** 2 + d[1] ** 2)
-    c = o0**2 + o1**2 - radius * radius
-    if a < 1e-12:
-        inside = c <= 0.0
-        return np.where(inside, -np.inf, np.inf), np.where(inside, np.inf, -np.inf)
-    return _quadratic_entry(a, 2.0 * (o0 * d[0] + o1 * d[1]), c)
+    return _entry(x, y, BOX, rot, pos, half)
 
 
 def cylinder_entry(
     x: np.ndarray, y: np.ndarray, rot: np.ndarray, pos: np.ndarray, radius: float, half_height: float
 ) -> np.ndarray:
     """Solid cylinder along the local z axis (MuJoCo's convention)."""
-    d = rot[2]
-    a_in, a_out = _tube(_local_origin(x, y, rot, pos, 0), _local_origin(x, y, rot, pos, 1), d, radius)
-    b_in, b_out = _slab(_local_origin(x, y, rot, pos, 2), float(d[2]), -half_height, half_height)
-    t_in, t_out = np.maximum(a_in, b_in), np.minimum(a_out, b_out)
-    t_in[t_in > t_out] = np.inf
-    return t_in
+    return _entry(x, y, CYLINDER, rot, pos, np.array([radius, half_height, 0.0]))
+
+
+@numba.njit(cache=True, nogil=True)
+def _slab(o: float, d: float, lo: float, hi: float) -> tuple[float, float]:  # pragma: no cover (compiled)
+    """Entry and exit of the line o + t d through the slab lo <= . <= hi."""
+    if abs(d) < 1e-12:
+        return (-np.inf, np.inf) if lo <= o <= hi else (np.inf, -np.inf)
+    t1, t2 = (lo - o) / d, (hi - o) / d
+    return min(t1, t2), max(t1, t2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _lower_convex(heights: np.ndarray, x: np.ndarray, y: np.ndarray, kind: int, rot: np.ndarray, pos: np.ndarray,
+                  size: np.ndarray) -> None:  # pragma: no cover (compiled)
+    # Per cell, the vertical line {(x, y, t)} in the object's frame: origin o = rot.T @ ((x, y, 0) - pos) and
+    # direction d = rot.T @ (0, 0, 1) = rot[2]; then the closed-form entry (quadratic or slabs). Compiled: one
+    # pass per cell where array code makes a dozen over the window.
+    d0, d1, d2 = rot[2, 0], rot[2, 1], rot[2, 2]
+    for i in range(y.size):
+        for j in range(x.size):
+            o0 = ((x[j] - pos[0]) * rot[0, 0] + (y[i] - pos[1]) * rot[1, 0]) - pos[2] * rot[2, 0]
+            o1 = ((x[j] - pos[0]) * rot[0, 1] + (y[i] - pos[1]) * rot[1, 1]) - pos[2] * rot[2, 1]
+            o2 = ((x[j] - pos[0]) * rot[0, 2] + (y[i] - pos[1]) * rot[1, 2]) - pos[2] * rot[2, 2]
+            t_in = np.inf
+            if kind == ELLIPSOID:   # scaled to the unit sphere
+                u0, u1, u2 = o0 / size[0], o1 / size[1], o2 / size[2]
+                e0, e1, e2 = d0 / size[0], d1 / size[1], d2 / size[2]
+                a = e0 * e0 + e1 * e1 + e2 * e2
+                b = 2.0 * (u0 * e0 + u1 * e1 + u2 * e2)
+                c = (u0 * u0 + u1 * u1 + u2 * u2) - 1.0
+                disc = b * b - 4.0 * a * c
+                if disc >= 0.0:
+                    t_in = (-b - np.sqrt(disc)) / (2.0 * a)
+            else:
+                if kind == BOX:
+                    t_in, t_out = _slab(o0, d0, -size[0], size[0])
+                    lo, hi = _slab(o1, d1, -size[1], size[1])
+                    t_in, t_out = max(t_in, lo), min(t_out, hi)
+                    lo, hi = _slab(o2, d2, -size[2], size[2])
+                else:   # cylinder: the infinite tube about local z, cut by the slab of its height
+                    radius = size[0]
+                    a = d0 * d0 + d1 * d1
+                    c = o0 * o0 + o1 * o1 - radius * radius
+                    if a < 1e-12:
+                        t_in, t_out = (-np.inf, np.inf) if c <= 0.0 else (np.inf, -np.inf)
+                    else:
+                        b = 2.0 * (o0 * d0 + o1 * d1)
+                        disc = b * b - 4.0 * a * c
+                        if disc >= 0.0:
+                            root = np.sqrt(disc)
+                            t_in, t_out = (-b - root) / (2.0 * a), (-b + root) / (2.0 * a)
+                        else:
+                            t_in, t_out = np.inf, -np.inf
+                    lo, hi = _slab(o2, d2, -size[1], size[1])
+                t_in, t_out = max(t_in, lo), min(t_out, hi)
+                if t_in > t_out:
+                    t_in = np.inf
+            if t_in < heights[i, j]:
+                heights[i, j] = t_in
 
 
 def capsule_entry(
@@ -230,34 +244,6 @@ def _triangle_boxes(tri: np.ndarray, z_max: float) -> tuple[np.ndarray, np.ndarr
     return lo[:, 0] - SLACK_MM, hi[:, 0] + SLACK_MM, lo[:, 1] - SLACK_MM, hi[:, 1] + SLACK_MM
 
 
-def _row_spans(
-    tri: np.ndarray, rows: np.ndarray, y: np.ndarray, tri_of_row: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """x-span (lo, hi) mm, each (R,), of triangle ``tri[tri_of_row]`` (of (F, 3, 3), mm) along grid row
-    ``y[rows]``, from where its edges cross the row (widened by SLACK_MM, so a cell the scan skips lies outside
-    the triangle by more than rounding: scanning spans, not boxes, halves the cells tested on a slanted edge)."""
-    yy = y[rows]
-    corners = tri[tri_of_row]  # (R, 3, 3)
-    p, q = corners, np.roll(corners, -1, axis=1)
-    py, qy = p[:, :, 1], q[:, :, 1]
-    rise = qy - py
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.clip((yy[:, None] - py) / rise, 0.0, 1.0)
-    s = np.where(rise != 0.0, s, 0.0)  # a level edge on the row is met at its ends by the other two edges
-    xs = p[:, :, 0] + s * (q[:, :, 0] - p[:, :, 0])
-    meets = (yy[:, None] >= np.minimum(py, qy) - SLACK_MM) & (yy[:, None] <= np.maximum(py, qy) + SLACK_MM)
-    lo = np.where(meets, xs, np.inf).min(axis=1) - SLACK_MM
-    hi = np.where(meets, xs, -np.inf).max(axis=1) + SLACK_MM
-    return lo, hi
-
-
-def _runs(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For runs of ``counts`` consecutive integers from ``starts``: each member's run index and value."""
-    run = np.repeat(np.arange(counts.size), counts)
-    offset = np.arange(run.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    return run, starts[run] + offset
-
-
 def mesh_triangles(rot: np.ndarray, pos: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Triangles (F, 3, 3) mm in the pad frame of a mesh (``vertices`` (V, 3) mm in the object frame, ``faces``
     (F, 3) int)."""
@@ -275,54 +261,74 @@ def mesh_entry(
     ``x`` and ``y``).
     """
     out = np.full((y.size, x.size), np.inf)
-    cells, z = triangle_hits(x, y, mesh_triangles(rot, pos, vertices, faces), cutoff)
-    np.minimum.at(out.ravel(), cells, z)
+    rasterise_lowest(out, x, y, mesh_triangles(rot, pos, vertices, faces), cutoff)
     return out
 
 
-def triangle_hits(x: np.ndarray, y: np.ndarray, tri: np.ndarray, cutoff: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Cells of the regular grid (``x`` (nx,), ``y`` (ny,) mm) covered by triangles ``tri`` (F, 3, 3) mm, pad
-    frame, below ``cutoff`` mm: flat indices (N,) into (ny, nx) and the heights (N,) mm there, a cell once per
-    triangle over it (the entry is the lowest height per cell). Triangles wholly above ``cutoff`` are skipped,
-    and the others scanned only over the box of their part below it.
+def rasterise_lowest(heights: np.ndarray, x: np.ndarray, y: np.ndarray, tri: np.ndarray, cutoff: float = np.inf) -> None:
+    """Lower ``heights`` (ny, nx) mm, C-contiguous, on the regular grid (``x`` (nx,), ``y`` (ny,) mm) to the height
+    of every triangle of ``tri`` (F, 3, 3) mm (pad frame) over each cell centre, where that is lower. Triangles
+    wholly above ``cutoff`` mm are skipped, and the others scanned only over the box of their part below it.
     """
-    none = (np.empty(0, np.intp), np.empty(0))
     tri = tri[tri[:, :, 2].min(axis=1) <= cutoff]
     if tri.size == 0:
-        return none
+        return
     dx = x[1] - x[0] if x.size > 1 else 1.0
     dy = y[1] - y[0] if y.size > 1 else 1.0
-    ax, ay = tri[:, 0, 0], tri[:, 0, 1]
-    e1x, e1y = tri[:, 1, 0] - ax, tri[:, 1, 1] - ay
-    e2x, e2y = tri[:, 2, 0] - ax, tri[:, 2, 1] - ay
-    det = e1x * e2y - e1y * e2x
-    good = np.abs(det) > 1e-12  # edge-on triangles are covered by their neighbours
     x_lo, x_hi, y_lo, y_hi = _triangle_boxes(tri, cutoff + SLACK_MM)
     j0 = np.maximum(np.ceil((x_lo - x[0]) / dx - 1e-9).astype(np.intp), 0)
     j1 = np.minimum(np.floor((x_hi - x[0]) / dx + 1e-9).astype(np.intp), x.size - 1)
     i0 = np.maximum(np.ceil((y_lo - y[0]) / dy - 1e-9).astype(np.intp), 0)
     i1 = np.minimum(np.floor((y_hi - y[0]) / dy + 1e-9).astype(np.intp), y.size - 1)
-    keep = np.flatnonzero(good & (j1 >= j0) & (i1 >= i0))
-    if keep.size == 0:
-        return none
-    # one run of cells per (triangle, row): the row's span of the triangle, inside the triangle's box
-    tr, ii = _runs(i0[keep], i1[keep] - i0[keep] + 1)
-    tr = keep[tr]
-    span_lo, span_hi = _row_spans(tri, ii, y, tr)
-    jlo = np.maximum(np.ceil((span_lo - x[0]) / dx - 1e-9).astype(np.intp), j0[tr])
-    jhi = np.minimum(np.floor((span_hi - x[0]) / dx + 1e-9).astype(np.intp), j1[tr])
-    row_cells = np.maximum(jhi - jlo + 1, 0)
-    # constants of each run (the barycentric terms that do not depend on the column)
-    py = y[ii] - ay[tr]
-    inv = 1.0 / det[tr]
-    consts = np.column_stack([ax[tr], e2y[tr], py * e2x[tr], e1x[tr] * py, e1y[tr], inv, tri[tr, 0, 2],
-                              tri[tr, 1, 2] - tri[tr, 0, 2], tri[tr, 2, 2] - tri[tr, 0, 2]])
-    run, jj = _runs(jlo, row_cells)
-    c = consts[run].T
-    px = x[jj] - c[0]
-    b1 = (px * c[1] - c[2]) * c[5]
-    b2 = (c[3] - c[4] * px) * c[5]
-    eps = -1e-9
-    inside = (b1 >= eps) & (b2 >= eps) & (b1 + b2 <= 1.0 - eps)
-    z = c[6] + b1 * c[7] + b2 * c[8]
-    return (ii[run] * x.size + jj)[inside], z[inside]
+    keep = np.flatnonzero((j1 >= j0) & (i1 >= i0))
+    if keep.size:
+        _scan_triangles(heights.reshape(-1), np.ascontiguousarray(x, dtype=np.float64),
+                        np.ascontiguousarray(y, dtype=np.float64), np.ascontiguousarray(tri[keep]),
+                        i0[keep], i1[keep], j0[keep], j1[keep], float(dx))
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_triangles(heights: np.ndarray, x: np.ndarray, y: np.ndarray, tri: np.ndarray, i0: np.ndarray,
+                    i1: np.ndarray, j0: np.ndarray, j1: np.ndarray, dx: float) -> None:  # pragma: no cover (compiled)
+    # Per triangle and grid row in its box: the row's x-span from where the edges cross it (widened by SLACK_MM,
+    # so a cell the scan skips lies outside the triangle by more than rounding), then barycentric coordinates per
+    # cell (accepting -1e-9 of rounding) and the interpolated height, kept where lower. Compiled: a triangle
+    # covers a handful of cells, where array code pays per call.
+    nx = x.size
+    for t in range(tri.shape[0]):
+        ax, ay = tri[t, 0, 0], tri[t, 0, 1]
+        e1x, e1y = tri[t, 1, 0] - ax, tri[t, 1, 1] - ay
+        e2x, e2y = tri[t, 2, 0] - ax, tri[t, 2, 1] - ay
+        det = e1x * e2y - e1y * e2x
+        if not abs(det) > 1e-12:   # edge-on triangles are covered by their neighbours
+            continue
+        inv = 1.0 / det
+        z0 = tri[t, 0, 2]
+        dz1, dz2 = tri[t, 1, 2] - z0, tri[t, 2, 2] - z0
+        for i in range(i0[t], i1[t] + 1):
+            yy = y[i]
+            lo, hi, met = np.inf, -np.inf, False
+            for e in range(3):
+                px, py = tri[t, e, 0], tri[t, e, 1]
+                qx, qy = tri[t, (e + 1) % 3, 0], tri[t, (e + 1) % 3, 1]
+                if not (min(py, qy) - SLACK_MM <= yy <= max(py, qy) + SLACK_MM):
+                    continue
+                rise = qy - py
+                s = min(max((yy - py) / rise, 0.0), 1.0) if rise != 0.0 else 0.0
+                xs = px + s * (qx - px)
+                lo, hi, met = min(lo, xs), max(hi, xs), True
+            if not met:
+                continue
+            jlo = max(int(np.ceil((lo - SLACK_MM - x[0]) / dx - 1e-9)), j0[t])
+            jhi = min(int(np.floor((hi + SLACK_MM - x[0]) / dx + 1e-9)), j1[t])
+            py_rel = yy - ay
+            py_e2x, e1x_py = py_rel * e2x, e1x * py_rel
+            for j in range(jlo, jhi + 1):
+                px_rel = x[j] - ax
+                b1 = (px_rel * e2y - py_e2x) * inv
+                b2 = (e1x_py - e1y * px_rel) * inv
+                if b1 >= -1e-9 and b2 >= -1e-9 and b1 + b2 <= 1.0 + 1e-9:
+                    z = z0 + b1 * dz1 + b2 * dz2
+                    cell = i * nx + j
+                    if z < heights[cell]:
+                        heights[cell] = z

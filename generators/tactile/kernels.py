@@ -91,6 +91,7 @@ class KernelSet:
         self._tangential_single: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tangential_centred: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._radial: tuple[np.ndarray, np.ndarray] | None = None
+        self._in_plane_single: np.ndarray | None = None
 
     def _spectrum(self, k: np.ndarray) -> np.ndarray:
         return sfft.rfft2(k, workers=1)
@@ -139,6 +140,14 @@ class KernelSet:
             self._tangential_single = tuple(k.astype(np.complex64) for k in self.tangential())  # type: ignore[assignment]
         assert self._tangential_single is not None
         return self._tangential_single
+
+    def in_plane_single(self) -> np.ndarray:
+        """(2, 3, ...) complex64 spectra taking the rfft2 of (pressure, traction x, traction y) to in-plane
+        displacement (x, y): ``[[rx, xx, xy], [ry, xy, yy]]``, built once."""
+        if self._in_plane_single is None:
+            (rx, ry), (xx, xy, yy) = self.radial(), self.tangential()
+            self._in_plane_single = np.array([[rx, xx, xy], [ry, xy, yy]], dtype=np.complex64)
+        return self._in_plane_single
 
     def radial(self) -> tuple[np.ndarray, np.ndarray]:
         """(rx, ry) spectra: normal pressure (MPa) -> in-plane displacement (mm), toward the load for nu < 0.5."""

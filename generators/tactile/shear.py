@@ -307,18 +307,14 @@ def solve_shear(
     traction = np.zeros((2, *shape))
     traction[:, rows, cols] = q
     ks = kernel_set(shape, dx_mm, dy_mm, material.youngs_modulus_mpa, material.poisson_ratio)
-    displacement = np.zeros((2, *shape))
-    if material.poisson_ratio < 0.5:
-        kx, ky = ks.radial()
-        fp = sfft.rfft2(pressure_mpa, s=ks.pad_shape, workers=1)
-        displacement[0] = sfft.irfft2(fp * kx, s=ks.pad_shape, workers=1)[: shape[0], : shape[1]]
-        displacement[1] = sfft.irfft2(fp * ky, s=ks.pad_shape, workers=1)[: shape[0], : shape[1]]
-    if np.any(q != 0.0):
-        kxx, kxy, kyy = ks.tangential()
-        fx = sfft.rfft2(traction[0], s=ks.pad_shape, workers=1)
-        fy = sfft.rfft2(traction[1], s=ks.pad_shape, workers=1)
-        displacement[0] += sfft.irfft2(kxx * fx + kxy * fy, s=ks.pad_shape, workers=1)[: shape[0], : shape[1]]
-        displacement[1] += sfft.irfft2(kxy * fx + kyy * fy, s=ks.pad_shape, workers=1)[: shape[0], : shape[1]]
+    # the radial term of p and the Cerruti term of q in one forward and one inverse transform (single precision:
+    # the displacement moves markers stored in float32 px)
+    loads = np.empty((3, *shape), np.float32)
+    loads[0], loads[1:] = pressure_mpa, traction
+    spectra = sfft.rfft2(loads, s=ks.pad_shape, axes=(-2, -1), workers=1)
+    kernel = ks.in_plane_single()
+    in_plane = kernel[:, 0] * spectra[0] + kernel[:, 1] * spectra[1] + kernel[:, 2] * spectra[2]
+    displacement = sfft.irfft2(in_plane, s=ks.pad_shape, axes=(-2, -1), workers=1)[:, : shape[0], : shape[1]]
     new_state = ContactState(
         in_contact=True, reference_mm=(float(reference[0]), float(reference[1])),
         reference_twist_rad=float(twist_ref), slip_mm=float(slip),

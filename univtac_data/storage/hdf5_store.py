@@ -63,6 +63,16 @@ class HDF5Handle(EpisodeHandle):
         the path is not an array of this episode."""
         return self._dataset(path)
 
+    def file_stat(self) -> os.stat_result | None:
+        """``fstat`` of the file HDF5 has open (``None`` when HDF5 does not open it as a plain local file):
+        which version of the file the handle reads, for readers that keep what they learnt from it."""
+        if self._file.driver != "sec2":
+            return None
+        try:
+            return os.fstat(int(self._file.id.get_vfd_handle()))
+        except (OSError, ValueError, RuntimeError):
+            return None
+
     def _dataset(self, path: str) -> h5py.Dataset:
         dataset = self._datasets.get(path)
         if dataset is None:

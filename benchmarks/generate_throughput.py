@@ -103,7 +103,7 @@ def main() -> None:
                 out = os.path.join(tmp, f"{sensor}-{method}")
                 # untimed: the compiled kernels (numba) are built or loaded once per process, a one-time cost
                 # that a worker pays on its first frame, not per frame
-                one(sensor, method, shapes[0], 3, os.path.join(tmp, "warm-up"), 10_000)
+                one(sensor, method, shapes[0], 3, os.path.join(tmp, f"warm-up-{sensor}-{method}"), 10_000)
                 runs = [one(sensor, method, shape, args.frames, out, k) for k, shape in enumerate(shapes)]
                 frames = sum(r["frames"] for r in runs)
                 seconds = sum(r["simulate_cpu_s"] + r["write_cpu_s"] for r in runs)

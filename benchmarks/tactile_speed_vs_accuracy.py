@@ -76,7 +76,7 @@ def speed_vs_accuracy(repeats: int) -> list[dict[str, object]]:
 def stage_profile(repeats: int) -> dict[str, float]:
     """Where an elastic GelSight Mini frame spends its time (ms, median)."""
     from univtac_data.generators.tactile.contact import solve_contact
-    from univtac_data.generators.tactile.frame import _solver_gap
+    from univtac_data.generators.tactile.sensor_model import downsample_overlap_or_mean
     from univtac_data.generators.tactile.markers import draw_markers
     from univtac_data.generators.tactile.optics import render_shaded
     from univtac_data.generators.tactile.sensor_model import downsample_mean
@@ -85,12 +85,12 @@ def stage_profile(repeats: int) -> dict[str, float]:
     p = get_sensor("gelsight_mini")
     gap = sphere_gap(p, 5.0, 0.4)
     grid, grid_sh = sensor_grid(p, 2), sensor_grid(p, 4)
-    g2 = _solver_gap(gap, 2)
+    g2 = downsample_overlap_or_mean(gap, 2)
     res = solve_contact(g2, grid, p.material, ContactConfig())
     psh = downsample_mean(res.pressure_mpa, 2, "constant")
     frame = simulate_frame(p, gap)
     out = {
-        "solver_gap_downsample": timed(lambda: _solver_gap(gap, 2), repeats),
+        "solver_gap_downsample": timed(lambda: downsample_overlap_or_mean(gap, 2), repeats),
         "elastic_solve_incl_full_grid_displacement": timed(lambda: solve_contact(g2, grid, p.material, ContactConfig()), repeats),
         "shear_and_radial_marker_field": timed(lambda: solve_shear(psh, psh > 0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm,
                                                                     grid_sh.y_mm, p.material, (0, 0), 0.0, None), repeats),

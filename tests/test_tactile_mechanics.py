@@ -241,3 +241,34 @@ def test_compiled_gaussian_blur_equals_scipy(shape: tuple[int, int]) -> None:
     for sigmas in ((4.3, 4.4), (2.15, 1.0), (0.4, 0.5)):
         want = gaussian_filter(field, sigmas, mode="constant", truncate=3.0)
         assert np.abs(gaussian_blur(field, *sigmas) - want).max() <= 3e-7
+
+
+def block_mean_reference(field: np.ndarray, step: int, pad_mode: str) -> np.ndarray:
+    """Pad, reshape, mean: the array code the compiled block means replaced."""
+    h, w = field.shape
+    padded = np.pad(field, ((0, -h % step), (0, -w % step)), mode=pad_mode)
+    return padded.reshape(padded.shape[0] // step, step, padded.shape[1] // step, step).mean(axis=(1, 3))
+
+
+@pytest.mark.parametrize("shape", [(240, 320), (480, 480), (241, 319), (7, 5)])
+def test_compiled_block_means_and_bilinear_upsampling(shape: tuple[int, int]) -> None:
+    from univtac_data.generators.tactile.sensor_model import downsample_overlap_or_mean, upsample_linear
+
+    rng = np.random.default_rng(5)
+    field = rng.normal(0.0, 1.0, shape) * (rng.random(shape) > 0.3) + np.where(rng.random(shape) > 0.8, 1e3, 0.0)
+    for step in (2, 3, 12):
+        for mode in ("edge", "constant"):
+            np.testing.assert_allclose(downsample_mean(field, step, mode), block_mean_reference(field, step, mode),
+                                       rtol=1e-13, atol=1e-12)
+        negative = block_mean_reference(np.minimum(field, 0.0), step, "edge")
+        expected = np.where(negative < 0.0, negative, block_mean_reference(field, step, "edge"))
+        np.testing.assert_allclose(downsample_overlap_or_mean(field, step), expected, rtol=1e-13, atol=1e-12)
+        # bilinear between solver-cell centres ((k + 0.5) step - 0.5 px), held constant beyond the outer ones
+        coarse = rng.random((-(-shape[0] // step), -(-shape[1] // step)))
+        rows = np.clip((np.arange(shape[0]) - (step - 1) / 2.0) / step, 0, coarse.shape[0] - 1)
+        cols = np.clip((np.arange(shape[1]) - (step - 1) / 2.0) / step, 0, coarse.shape[1] - 1)
+        along_rows = np.stack([np.interp(rows, np.arange(coarse.shape[0]), coarse[:, c]) for c in range(coarse.shape[1])], 1)
+        expected_fine = np.stack([np.interp(cols, np.arange(coarse.shape[1]), r) for r in along_rows])
+        np.testing.assert_allclose(upsample_linear(coarse, step, shape), expected_fine, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="pad_mode"):
+        downsample_mean(field, 2, "reflect")

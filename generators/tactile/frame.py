@@ -18,7 +18,9 @@ from .contact import GAP_FAR_MM, ContactConfig, ContactMethod, solve_contact
 from .markers import draw_markers, sample_bilinear
 from .optics import ShadingConfig, render_shaded
 from .optics_calibrated import TaximCalibration
-from .sensor_model import downsample_mean, marker_reference_mm, project_to_px, sensor_grid, upsample_linear
+from .sensor_model import (
+    downsample_mean, downsample_overlap_or_mean, marker_reference_mm, project_to_px, sensor_grid, upsample_linear,
+)
 from .shear import ContactState, solve_shear
 
 __all__ = ["TactileConfig", "TactileFrame", "simulate_frame"]
@@ -66,16 +68,6 @@ class TactileFrame:
     state: ContactState
     converged: bool = True
     iterations: int = 0
-
-
-def _solver_gap(gap: np.ndarray, step: int) -> np.ndarray:
-    """Gap on the solver grid: block mean, except that blocks straddling an overlap edge average only the
-    overlap (clipped at 0), so a sharp edge keeps its area-weighted depth instead of drowning in GAP_FAR."""
-    if step == 1:
-        return gap
-    mean = downsample_mean(gap, step)
-    neg = downsample_mean(np.minimum(gap, 0.0), step)
-    return np.where(neg < 0.0, neg, mean)
 
 
 def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -> np.ndarray:
@@ -183,7 +175,7 @@ def simulate_frame(
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
-    result = solve_contact(_solver_gap(gap, step), grid, material, contact_cfg, previous)
+    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous)
     if contact_cfg.method == "geometric":
         # on the image grid already: the depth holds the overlap and the pressure is zero off the mask
         depth, contact, pressure = result.depth_mm, result.contact_mask, result.pressure_mpa

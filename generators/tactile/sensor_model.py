@@ -21,12 +21,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
 
 from univtac_data.schema.sensors import SensorProfile
 
 __all__ = [
-    "SensorGrid", "downsample_mean", "marker_reference_mm", "marker_reference_px", "project_to_px", "sensor_grid",
+    "SensorGrid", "downsample_mean", "downsample_overlap_or_mean", "marker_reference_mm", "marker_reference_px", "project_to_px", "sensor_grid",
     "upsample_linear",
 ]
 
@@ -118,13 +119,52 @@ def downsample_mean(field: np.ndarray, step: int, pad_mode: str = "edge") -> np.
     """
     if step == 1:
         return field
+    if pad_mode not in ("edge", "constant"):
+        raise ValueError(f"pad_mode must be 'edge' or 'constant' (got {pad_mode!r})")
+    out = np.empty((-(-field.shape[0] // step), -(-field.shape[1] // step)))
+    _block_means(np.asarray(field, dtype=np.float64), step, pad_mode == "edge", False, out)
+    return out
+
+
+def downsample_overlap_or_mean(gap_mm: np.ndarray, step: int) -> np.ndarray:
+    """Per ``step x step`` block (edge-padded): the mean of min(g, 0) where that is negative, else the mean of g.
+    A block straddling an overlap edge so keeps its area-weighted overlap instead of drowning in far gaps."""
+    if step == 1:
+        return gap_mm
+    out = np.empty((-(-gap_mm.shape[0] // step), -(-gap_mm.shape[1] // step)))
+    _block_means(np.asarray(gap_mm, dtype=np.float64), step, True, True, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_means(field: np.ndarray, step: int, edge: bool, overlap_first: bool, out: np.ndarray) -> None:  # pragma: no cover
+    # one pass over the field (array code pads, reshapes and reduces over a 2- or 3-long axis, which is slow);
+    # each block sums its rows' sums in order, as the array code did
     h, w = field.shape
-    ph, pw = -h % step, -w % step
-    if ph or pw:
-        field = np.pad(field, ((0, ph), (0, pw)), mode=pad_mode)  # type: ignore[call-overload]
-    hh, ww = field.shape
-    # summing the contiguous axis first is several times faster than mean(axis=(1, 3))
-    return field.reshape(hh // step, step, ww // step, step).sum(axis=3).sum(axis=1) * (1.0 / (step * step))
+    scale = 1.0 / (step * step)
+    for bi in range(out.shape[0]):
+        for bj in range(out.shape[1]):
+            total, negative = 0.0, 0.0
+            for a in range(step):
+                i = bi * step + a
+                if i >= h:
+                    if not edge:
+                        continue
+                    i = h - 1
+                row_total, row_negative = 0.0, 0.0
+                for b in range(step):
+                    j = bj * step + b
+                    if j >= w:
+                        if not edge:
+                            continue
+                        j = w - 1
+                    value = field[i, j]
+                    row_total += value
+                    row_negative += min(value, 0.0)
+                total += row_total
+                negative += row_negative
+            negative *= scale
+            out[bi, bj] = negative if overlap_first and negative < 0.0 else total * scale
 
 
 @lru_cache(maxsize=32)
@@ -152,5 +192,19 @@ def upsample_linear(field: np.ndarray, step: int, shape: tuple[int, int],
     if window is not None:
         r0, r1, tr = r0[window[0]], r1[window[0]], tr[window[0]]
         c0, c1, tc = c0[window[1]], c1[window[1]], tc[window[1]]
-    rows = field[r0] * (1.0 - tr)[:, None] + field[r1] * tr[:, None]
-    return rows[:, c0] * (1.0 - tc) + rows[:, c1] * tc
+    out = np.empty((r0.size, c0.size))
+    _bilinear(np.asarray(field, dtype=np.float64), r0, r1, tr, c0, c1, tc, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(field: np.ndarray, r0: np.ndarray, r1: np.ndarray, tr: np.ndarray, c0: np.ndarray, c1: np.ndarray,
+              tc: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    # rows first, then columns, with the array code's arithmetic (so the same values), in one pass per row
+    rows = np.empty(field.shape[1])
+    for i in range(r0.size):
+        a, b = 1.0 - tr[i], tr[i]
+        for c in range(field.shape[1]):
+            rows[c] = field[r0[i], c] * a + field[r1[i], c] * b
+        for j in range(c0.size):
+            out[i, j] = rows[c0[j]] * (1.0 - tc[j]) + rows[c1[j]] * tc[j]

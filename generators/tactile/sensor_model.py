@@ -137,6 +137,14 @@ def downsample_overlap_or_mean(gap_mm: np.ndarray, step: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
+def _padded_index(k: int, n: int, edge: bool) -> int:  # pragma: no cover (compiled)
+    """Index ``k`` of an axis of ``n`` padded at its far end: the last one repeated (``edge``), else -1 (zeros)."""
+    if k < n:
+        return k
+    return n - 1 if edge else -1
+
+
+@numba.njit(cache=True, nogil=True)
 def _block_means(field: np.ndarray, step: int, edge: bool, overlap_first: bool, out: np.ndarray) -> None:  # pragma: no cover
     # one pass over the field (array code pads, reshapes and reduces over a 2- or 3-long axis, which is slow);
     # each block sums its rows' sums in order, as the array code did
@@ -146,18 +154,14 @@ def _block_means(field: np.ndarray, step: int, edge: bool, overlap_first: bool, 
         for bj in range(out.shape[1]):
             total, negative = 0.0, 0.0
             for a in range(step):
-                i = bi * step + a
-                if i >= h:
-                    if not edge:
-                        continue
-                    i = h - 1
+                i = _padded_index(bi * step + a, h, edge)
+                if i < 0:
+                    continue
                 row_total, row_negative = 0.0, 0.0
                 for b in range(step):
-                    j = bj * step + b
-                    if j >= w:
-                        if not edge:
-                            continue
-                        j = w - 1
+                    j = _padded_index(bj * step + b, w, edge)
+                    if j < 0:
+                        continue
                     value = field[i, j]
                     row_total += value
                     row_negative += min(value, 0.0)

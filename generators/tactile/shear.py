@@ -14,9 +14,9 @@ displacement ``tangential_mm`` (dx, dy) in the pad frame and its twist ``twist_r
    as a dense matrix over the contact's cells when there are at most ``DENSE_MAX_CELLS``, else by FFT
    convolution over the contact's window.
 3. Gross slip. If the total tangential force exceeds mu * P (or the torque exceeds mu * sum(p |x - c|) dA),
-   by more than ``SLIDE_TOLERANCE``, the object slides: the load is scaled back to the friction limit and the reference follows the object, so the
-   excess displacement is accumulated in ``slip_mm`` (mm; a twist slide counts as the mean contact radius
-   times the angle). While stuck, ``slip_mm`` stays 0; it resets when contact ends.
+   by more than ``SLIDE_TOLERANCE``, the object slides: the load is scaled back to the friction limit and the
+   reference follows the object, so the excess displacement is accumulated in ``slip_mm`` (mm; a twist slide
+   counts as the mean contact radius times the angle). While stuck, ``slip_mm`` stays 0; it resets when contact ends.
 4. Partial slip (Cattaneo-Mindlin). Cells whose stuck traction exceeds mu * p slide: their traction is set to
    mu * p along the stuck direction and the stick region is solved again (a few rounds).
 5. In-plane displacement. ``u = K_t * q`` plus the radial term of the normal load

@@ -1,11 +1,20 @@
-"""Which lossless Blosc codec for each per-pixel tactile field: write and read cost against size, on generated frames.
+"""How to store each per-pixel tactile field: write and read cost against size, on generated frames.
 
-    python benchmarks/codecs.py [--frames 20]    # GelSight Mini, all 14 indenters, both pads, both contact models
+    python benchmarks/codecs.py [--frames 20] [--sensors gelsight_mini,gf225]
 
-Three field classes, each with its candidates: the RGB images (I_marked, I_pure), the depth in micrometres
-(uint16) and the contact mask (uint8 0/1). One frame per chunk with Fletcher-32, as the format stores them;
-CPU time of one process; per frame = both pads. Writes benchmarks/results/codecs.json. The spec's encoding
-table (spec/format.md, section 9, and univtac_data/storage/encoding.py) quotes it.
+For each sensor (native resolution), all 14 indenters, both pads and both contact models, three field
+classes with their candidates:
+
+* images (I_marked and I_pure together): stored as they are (format 1.0) or as residuals (format 2.0:
+  I_marked - I_pure, I_pure - pure_ref_rgb, modulo 256), with Blosc's automatic block size or 128 KiB
+  blocks, Zstandard at levels 1 and 3, LZ4;
+* depth in micrometres (uint16): byte- or bit-shuffle, block size, Zstandard or LZ4;
+* the contact mask (uint8 0/1).
+
+Chunks are one frame each with Fletcher-32, written by the package's own chunk writer into an in-memory HDF5
+file and read back frame by frame through h5py (a residual read adds its base back, as the reader does).
+CPU time of one process; per frame = both pads. Writes benchmarks/results/codecs.json; the spec's encoding
+section (spec/format.md, section 9) and univtac_data/storage/encoding.py quote it.
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ import io
 import json
 import sys
 import time
+from dataclasses import dataclass
 
 import h5py
 import hdf5plugin
@@ -23,62 +33,107 @@ from common import RESULTS, machine
 
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.generators.indenters import INDENTER_NAMES
+from univtac_data.storage.encoding import FRAME_BLOCK_BYTES, EncodedArray, Encoding
+from univtac_data.storage.hdf5_store import write_frame_chunks
 
-SHUFFLE = {"byte": hdf5plugin.Blosc.SHUFFLE, "bit": hdf5plugin.Blosc.BITSHUFFLE}
-FIELD_CLASSES = {  # class -> (array names under tactile/<pad>/, candidates (cname, level, shuffle))
-    "image": (("marked_rgb", "pure_rgb"),
-              [("zstd", 3, "byte"), ("zstd", 1, "byte"), ("lz4hc", 1, "byte"), ("lz4", 1, "byte"), ("lz4", 9, "byte")]),
-    "depth": (("depth_um",),
-              [("zstd", 1, "bit"), ("zstd", 1, "byte"), ("lz4", 1, "byte"), ("lz4", 1, "bit"), ("blosclz", 1, "byte")]),
-    "mask": (("contact_mask",),
-             [("zstd", 1, "byte"), ("lz4", 1, "byte"), ("blosclz", 1, "byte")]),
+PADS = ("left", "right")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    cname: str
+    level: int
+    shuffle: str  # "byte" or "bit"
+    blocksize: int  # bytes, 0: Blosc chooses
+    residual: bool = False  # images only: the 2.0 residual coding
+
+    @property
+    def name(self) -> str:
+        block = f"{self.blocksize // 1024}k" if self.blocksize else "auto"
+        return f"{'residual' if self.residual else 'plain'} {self.cname}:{self.level}:{self.shuffle} blocks {block}"
+
+
+CANDIDATES = {
+    "image": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
+              Candidate("zstd", 1, "byte", 0, True), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES, True),
+              Candidate("zstd", 3, "byte", FRAME_BLOCK_BYTES, True), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES, True)],
+    "depth": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
+              Candidate("zstd", 1, "bit", FRAME_BLOCK_BYTES), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES)],
+    "mask": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
+             Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES)],
 }
+FORMAT_CHOICE = {"image": CANDIDATES["image"][3], "depth": CANDIDATES["depth"][1], "mask": CANDIDATES["mask"][1]}
 
 
-def measure(arrays: list[np.ndarray], frames: int, cname: str, level: int, shuffle: str) -> dict[str, float | str]:
-    """Write every array (one frame per chunk) to an in-memory HDF5 file, read each frame back."""
+def _items(episode, field_class: str, candidate: Candidate) -> list[EncodedArray]:
+    """The arrays of one field class of an episode, as the writer would hand them to the chunk writer."""
+    out = []
+    for pad in PADS:
+        get = lambda key: episode.arrays[f"tactile/{pad}/{key}"]  # noqa: E731
+        if field_class == "image":
+            pairs = [("marked_rgb", get("marked_rgb"), get("pure_rgb")), ("pure_rgb", get("pure_rgb"), get("pure_ref_rgb"))]
+        else:
+            data = get("depth_um" if field_class == "depth" else "contact_mask").astype(
+                np.uint16 if field_class == "depth" else np.uint8)
+            pairs = [(field_class, data, None)]
+        for key, data, base in pairs:
+            encoding = Encoding((1, *data.shape[1:]), None, candidate.cname, candidate.level, candidate.shuffle,  # type: ignore[arg-type]
+                                str(data.dtype), candidate.blocksize, True)
+            residual = candidate.residual and base is not None
+            out.append(EncodedArray(f"{pad}/{key}", data, encoding, "base" if residual else None,
+                                    base if residual else None))
+    return out
+
+
+def measure(episodes: list, field_class: str, candidate: Candidate) -> dict[str, float | str]:
+    """Write every array to an in-memory HDF5 file with the package's chunk writer; read each frame back."""
+    frames = sum(episode.meta.n_frames for episode in episodes)
+    per_episode = [_items(episode, field_class, candidate) for episode in episodes]
     sink = io.BytesIO()
     start = time.process_time()
     with h5py.File(sink, "w") as f:
-        for k, array in enumerate(arrays):
-            f.create_dataset(str(k), data=array, chunks=(1, *array.shape[1:]), fletcher32=True,
-                             **hdf5plugin.Blosc(cname=cname, clevel=level, shuffle=SHUFFLE[shuffle]))
+        for k, items in enumerate(per_episode):
+            for item in items:
+                dataset = f.create_dataset(f"{k}/{item.path}", shape=item.data.shape, dtype=item.data.dtype,
+                                           chunks=item.encoding.chunks, fletcher32=True,
+                                           **hdf5plugin.Blosc(cname=candidate.cname, clevel=candidate.level))
+                write_frame_chunks(dataset, item)
     written = time.process_time()
     with h5py.File(sink, "r") as f:
-        for k in range(len(arrays)):
-            dataset = f[str(k)]
-            for t in range(dataset.shape[0]):
-                dataset[t]
+        for k, items in enumerate(per_episode):
+            for item in items:
+                dataset = f[f"{k}/{item.path}"]
+                for t in range(dataset.shape[0]):
+                    frame = dataset[t]
+                    if item.base is not None:  # the reader adds the base back (itself decoded for I_marked)
+                        np.add(frame, item.base[t] if item.base.ndim == item.data.ndim else item.base, out=frame)
     read = time.process_time()
-    return {"codec": f"{cname}:{level}:{shuffle}", "write_ms_per_frame": round((written - start) / frames * 1e3, 3),
+    return {"codec": candidate.name, "format_choice": candidate == FORMAT_CHOICE[field_class],
+            "write_ms_per_frame": round((written - start) / frames * 1e3, 3),
             "read_ms_per_frame": round((read - written) / frames * 1e3, 3),
             "kib_per_frame": round(len(sink.getvalue()) / frames / 1024, 2)}
-
-
-def stored(array: np.ndarray) -> np.ndarray:
-    """The array as the format stores it (bool masks as uint8 0/1)."""
-    return array.astype(np.uint8) if array.dtype == bool else array
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--sensors", default="gelsight_mini,gf225")
     args = parser.parse_args()
     rows = []
-    for contact in ("geometric", "elastic"):
-        episodes = [run_indenter_episode(IndenterEpisodeSpec("gelsight_mini", shape, 0, frames=args.frames,
-                                                             contact_method=contact)) for shape in INDENTER_NAMES]
-        frames = sum(episode.meta.n_frames for episode in episodes)
-        for field_class, (names, candidates) in FIELD_CLASSES.items():
-            arrays = [stored(episode.arrays[f"tactile/{pad}/{name}"])
-                      for episode in episodes for pad in ("left", "right") for name in names]
-            for candidate in candidates:
-                row = {"contact": contact, "field": field_class, **measure(arrays, frames, *candidate)}
-                rows.append(row)
-                print(json.dumps(row), file=sys.stderr)
-    result = {"machine": machine(threads_used=1, packages=("numpy", "h5py", "hdf5plugin")),
-              "episodes": f"gelsight_mini, the 14 indenters, {args.frames} frames each, geometric and elastic",
-              "per_frame": {name: f"both pads' {', '.join(names)}" for name, (names, _) in FIELD_CLASSES.items()},
+    for sensor in args.sensors.split(","):
+        for contact in ("geometric", "elastic"):
+            episodes = [run_indenter_episode(IndenterEpisodeSpec(sensor, shape, 0, frames=args.frames,
+                                                                 contact_method=contact)) for shape in INDENTER_NAMES]
+            for field_class, candidates in CANDIDATES.items():
+                for candidate in candidates:
+                    row = {"sensor": sensor, "contact": contact, "field": field_class,
+                           **measure(episodes, field_class, candidate)}
+                    rows.append(row)
+                    print(json.dumps(row), file=sys.stderr)
+    result = {"machine": machine(threads_used=1, packages=("numpy", "h5py", "hdf5plugin", "numcodecs")),
+              "episodes": f"{args.sensors}, the 14 indenters, {args.frames} frames each, geometric and elastic",
+              "per_frame": {"image": "both pads' marked_rgb and pure_rgb", "depth": "both pads' depth_um",
+                            "mask": "both pads' contact_mask"},
               "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "codecs.json").write_text(json.dumps(result, indent=2) + "\n")

@@ -117,14 +117,15 @@ def main() -> None:
                 }
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr)
-        profile = {m: profile_stages("gelsight_mini", m, "cross", args.frames, os.path.join(tmp, f"profile-{m}"))
-                   for m in ("geometric", "elastic")}
+        profile = {f"{sensor} {m}": profile_stages(sensor, m, "cross", args.frames,
+                                                   os.path.join(tmp, f"profile-{sensor}-{m}"))
+                   for sensor, m in (("gelsight_mini", "geometric"), ("gelsight_mini", "elastic"), ("gf225", "geometric"))}
     result = {
         "machine": machine(threads_used=1), "shapes": shapes, "frames_per_episode": args.frames,
         "targets": {"geometric_frames_per_s": 100, "elastic_frames_per_s": 25,
                     "bytes_per_frame_max": round(UNIVTAC_BYTES_PER_FRAME / 5)},
         "univtac_bytes_per_frame": round(UNIVTAC_BYTES_PER_FRAME), "rows": rows,
-        "time_share_gelsight_mini_cross": profile,
+        "time_share_cross": profile,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "generate_throughput.json").write_text(json.dumps(result, indent=2) + "\n")

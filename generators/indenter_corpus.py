@@ -122,9 +122,10 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
     generator = GeneratorInfo(name=GENERATOR_NAME, version=__version__, settings={
         **asdict(spec), "seed": spec.seed, "yaw_rad": yaw, "offset_m": offset.tolist(), "threshold_mm": threshold,
     })
-    return build_episode(sim.frames, episode_id=spec.episode_id, kind="indenter", name=spec.shape,
+    return build_episode(sim.frames, sim.pixel_arrays(), episode_id=spec.episode_id, kind="indenter", name=spec.shape,
                          sensor=spec.sensor, seed=spec.seed, generator=generator, success=None,
-                         rate_hz=spec.record_rate_hz, object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES)
+                         rate_hz=spec.record_rate_hz, object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES,
+                         reference_rgb=sim.reference_rgb())
 
 
 # Sliding the gel has done so far in an episode, mm, past which the script only holds. Slip accumulates and

@@ -5,13 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from univtac_data.episode import Episode
+from univtac_data.generators.frame_stack import PIXEL_FIELDS
 from univtac_data.generators.gripper import PADS
 from univtac_data.generators.sim import RecordedFrame
 from univtac_data.schema.models import EpisodeMeta, GeneratorInfo, SafetySummary
 
 
-def frames_to_arrays(frames: list[RecordedFrame], rate_hz: float, object_name: str) -> dict[str, np.ndarray]:
-    """Every array of the format from the recorded frames (T = len(frames)).
+def frames_to_arrays(frames: list[RecordedFrame], pixels: dict[str, np.ndarray], rate_hz: float, object_name: str,
+                     reference_rgb: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Every array of the format from the recorded frames (T = len(frames)) and per-pixel arrays
+    (``GripperSim.pixel_arrays()``, (T, ...) by path); ``reference_rgb``: the undeformed gel's I_pure
+    (``GripperSim.reference_rgb``), recorded as each pad's ``pure_ref_rgb``.
 
     ``robot/action[k]`` is the set-point commanded over the interval from frame k to frame k+1, i.e. the
     set-point in force when frame k+1 is recorded; the last frame repeats its own set-point.
@@ -30,11 +34,11 @@ def frames_to_arrays(frames: list[RecordedFrame], rate_hz: float, object_name: s
     for pad in PADS:
         tac = [f.tactile[pad] for f in frames]
         prefix = f"tactile/{pad}/"
-        arrays[prefix + "marked_rgb"] = np.stack([x.marked_rgb for x in tac])
-        arrays[prefix + "pure_rgb"] = np.stack([x.pure_rgb for x in tac])
-        arrays[prefix + "depth_um"] = np.stack([x.depth_um for x in tac])
-        arrays[prefix + "contact_mask"] = np.stack([x.contact_mask for x in tac])
+        for name in PIXEL_FIELDS:
+            arrays[prefix + name] = pixels[prefix + name]
         arrays[prefix + "markers_ref_px"] = tac[0].markers_ref_px.astype(np.float32)
+        if reference_rgb is not None:
+            arrays[prefix + "pure_ref_rgb"] = np.array(reference_rgb, dtype=np.uint8)
         arrays[prefix + "markers_px"] = np.stack([x.markers_px for x in tac]).astype(np.float32)
         arrays[prefix + "object_pose"] = np.stack([f.object_in_pad[pad] for f in frames]).astype(np.float64)
         arrays[prefix + "normal_force_n"] = np.array([x.normal_force_n for x in tac], np.float32)
@@ -52,10 +56,10 @@ def safety_summary(arrays: dict[str, np.ndarray]) -> SafetySummary:
     )
 
 
-def build_episode(frames: list[RecordedFrame], *, episode_id: str, kind: str, name: str, sensor: str, seed: int,
+def build_episode(frames: list[RecordedFrame], pixels: dict[str, np.ndarray], *, episode_id: str, kind: str, name: str, sensor: str, seed: int,
                   generator: GeneratorInfo, success: bool | None, rate_hz: float, object_name: str,
-                  primitive_names: list[str]) -> Episode:
-    arrays = frames_to_arrays(frames, rate_hz, object_name)
+                  primitive_names: list[str], reference_rgb: np.ndarray | None = None) -> Episode:
+    arrays = frames_to_arrays(frames, pixels, rate_hz, object_name, reference_rgb)
     meta = EpisodeMeta(
         episode_id=episode_id, kind=kind, name=name, sensor=sensor, seed=seed,  # type: ignore[arg-type]
         generator=generator, success=success, safety=safety_summary(arrays), nominal_rate_hz=rate_hz,

@@ -16,15 +16,16 @@ from typing import Literal
 import mujoco
 import numpy as np
 
+from univtac_data.generators.frame_stack import PIXEL_FIELDS, FrameStack
 from univtac_data.generators.geometry import mat_to_quat, relative_pose
 from univtac_data.generators.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to_opening, opening_to_finger_pos
 from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,
     TactileConfig,
-    TactileFrame,
     gap_field,
     pad_pose,
+    render_reference,
     sensor_grid,
     simulate_frame,
 )
@@ -69,6 +70,18 @@ def cell_steps(profile: SensorProfile, config: SimConfig) -> tuple[int, int]:
     return solver, shear
 
 
+@dataclass(frozen=True)
+class PadRecord:
+    """A pad's small per-frame tactile values (its images and maps go to ``GripperSim.pixels``):
+    marker positions (N, 2) px, normal force N, shear force (2,) N, slip mm."""
+
+    markers_ref_px: np.ndarray
+    markers_px: np.ndarray
+    normal_force_n: float
+    shear_force_n: np.ndarray
+    slip_mm: float
+
+
 @dataclass
 class RecordedFrame:
     """What ``GripperSim`` captures at one recorded frame (robot, objects, set-points, tactile per pad)."""
@@ -81,7 +94,7 @@ class RecordedFrame:
     opening_setpoint_m: float
     primitive: int
     object_world: np.ndarray
-    tactile: dict[str, TactileFrame]
+    tactile: dict[str, PadRecord]
     object_in_pad: dict[str, np.ndarray]
     pad_world: dict[str, np.ndarray]
 
@@ -99,6 +112,8 @@ class GripperSim:
         self.primitive_names = primitive_names
         self.primitive = -1
         self.frames: list[RecordedFrame] = []
+        #: per-pixel recorded arrays by path (``tactile/{pad}/marked_rgb``, ...), filled frame by frame
+        self.pixels: dict[str, FrameStack] = {}
         self._grid = sensor_grid(profile, 1)
         solver_step, shear_step = cell_steps(profile, self.config)
         self._tactile = TactileConfig(
@@ -126,6 +141,8 @@ class GripperSim:
     def start_recording(self) -> None:
         """Record from now on (frame 0 = the next tick), forgetting any earlier frames."""
         self.frames.clear()
+        capacity = self.config.max_frames or 64
+        self.pixels = {f"tactile/{pad}/{name}": FrameStack(capacity) for pad in PADS for name in PIXEL_FIELDS}
         self._record_origin_s = self._next_record_s = self.time_s
 
     @property
@@ -206,7 +223,11 @@ class GripperSim:
                 tangential_mm=tangential_mm, twist_rad=twist_rad, state=self._states[pad], config=self._tactile,
             )
             self._states[pad] = frame.state
-            tactile[pad], in_pad[pad] = frame, rel
+            for name in PIXEL_FIELDS:
+                self.pixels[f"tactile/{pad}/{name}"].append(getattr(frame, name))
+            tactile[pad] = PadRecord(frame.markers_ref_px, frame.markers_px, float(frame.normal_force_n),
+                                     frame.shear_force_n, float(frame.slip_mm))
+            in_pad[pad] = rel
             pad_world[pad] = np.concatenate([pad_pos, mat_to_quat(pad_mat)])
         recorded = RecordedFrame(
             time_s=self.time_s - self._record_origin_s, ee_pose=self.ee_pose(), opening_m=self.opening_m,
@@ -245,6 +266,14 @@ class GripperSim:
         if name not in self.primitive_names:
             raise ValueError(f"primitive {name!r} is not in {self.primitive_names}")
         self.primitive = self.primitive_names.index(name)
+
+    def pixel_arrays(self) -> dict[str, np.ndarray]:
+        """The recorded per-pixel arrays, (T, ...) each, by path."""
+        return {path: stack.array() for path, stack in self.pixels.items()}
+
+    def reference_rgb(self) -> np.ndarray:
+        """(H, W, 3) uint8 I_pure of an undeformed gel with this simulation's optics (``pure_ref_rgb``)."""
+        return render_reference(self.profile, self._tactile)
 
     def finite(self) -> bool:
         return bool(np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all())

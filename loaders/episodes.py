@@ -11,6 +11,11 @@ Datasets of many more episodes than ``max_open`` would reopen an episode for nea
 shuffled batch; for local HDF5 files the reader therefore reads again through what it recorded on the
 first touch (``layouts.LayoutCache``: chunk places and small arrays, checked against the file's version)
 with descriptors of its own (``files.EpisodeFiles``), and opens h5py only for arrays not recorded yet.
+
+Format 2.0 residual images (``marked_rgb`` over ``pure_rgb``, ``pure_rgb`` over ``pure_ref_rgb``) are read
+the same way: a residual's source carries its base (``chunks.FrameSource``), taken from the same handle or
+the same cached file, so that it stays valid exactly as long; a per-episode base is kept whole like the
+small arrays. A residual's base is recorded with its chunk places, so cached reads need no h5py either.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from __future__ import annotations
 import functools
 import os
 from collections import OrderedDict
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Union
@@ -26,11 +31,12 @@ from typing import Any, Union
 import numpy as np
 
 from univtac_data.storage import Dataset
-from univtac_data.storage.backend import EpisodeHandle
+from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle
+from univtac_data.storage.errors import CorruptFileError
 from univtac_data.storage.hdf5_store import HDF5Handle
 from univtac_data.schema.fields import field_for_path
 
-from univtac_data.loaders.chunks import FrameChunks, FrameLayout, FrameSource
+from univtac_data.loaders.chunks import FrameBase, FrameChunks, FrameLayout, FrameSource
 from univtac_data.loaders.files import DEFAULT_MAX_OPEN_FILES, CachedFile, EpisodeFiles
 from univtac_data.loaders.layouts import FileIdentity, LayoutCache
 from univtac_data.loaders.split import Split, check_split, split_of
@@ -145,21 +151,44 @@ def is_bool(path: str) -> bool:
     return spec is not None and spec.dtype == "bool"
 
 
-def handle_source(handle: EpisodeHandle, path: str) -> FrameSource:
+def handle_source(handle: EpisodeHandle, path: str, base_of: Callable[[str], FrameBase] | None = None,
+                  depth: int = 0) -> FrameSource:
     """A ``FrameSource`` reading through an open handle: HDF5 chunks decoded directly (``chunks.FrameChunks``,
-    through h5py's own descriptor), anything else through ``handle.read``. Valid while ``handle`` is open."""
+    through h5py's own descriptor), anything else through ``handle.read``. Valid while ``handle`` is open.
+
+    A residual's chunks get their base from ``base_of(base path)`` (a reader passes one that keeps what it
+    reads; default: read through ``handle`` alone); ``depth``: the array's place in a chain of residuals.
+    Raises ``CorruptFileError`` naming the file when the array's ``residual_of`` is wrong (as
+    ``handle.read`` would), ``KeyError`` when ``path`` is absent.
+    """
     shape, dtype = handle.layout(path)   # KeyError when absent (the loader checked paths first)
-    return FrameSource(shape[1:], dtype, _frame_chunks(handle, path), lambda frame: handle.read(path, frame))
+    residual_of = handle.residual_base(path)
+    if residual_of is not None and depth >= MAX_RESIDUAL_DEPTH:   # what handle.read raises for a cycle
+        raise CorruptFileError(f"{handle.where}: {path} is a residual of a residual more than "
+                               f"{MAX_RESIDUAL_DEPTH} deep (a cycle?)")
+    chunks = _frame_chunks(handle, path, residual_of)
+    base = None
+    if chunks is not None and residual_of is not None:   # without chunks handle.read adds the base itself
+        base = (base_of or functools.partial(_handle_base, handle, shape, depth))(residual_of)
+    return FrameSource(shape[1:], dtype, chunks, lambda frame: handle.read(path, frame), base)
 
 
-def _frame_chunks(handle: EpisodeHandle, path: str) -> FrameChunks | None:
+def _handle_base(handle: EpisodeHandle, shape: tuple[int, ...], depth: int, base: str) -> FrameBase:
+    """What a residual of ``shape`` adds, through ``handle`` alone: a per-frame base frame by frame, a
+    per-episode one read whole."""
+    if handle.layout(base)[0] == shape:
+        return handle_source(handle, base, depth=depth + 1)
+    return handle.read(base)
+
+
+def _frame_chunks(handle: EpisodeHandle, path: str, residual_of: str | None) -> FrameChunks | None:
     if not isinstance(handle, HDF5Handle):
         return None
     try:
         dataset = handle.h5py_dataset(path)
     except Exception:  # missing or damaged: handle.read raises the format's error on first use
         return None
-    return FrameChunks.of(dataset)
+    return FrameChunks.of(dataset, residual_of)
 
 
 @dataclass
@@ -330,24 +359,52 @@ class EpisodeReader:
             source = file.sources.get(path) or self._cached_source(ref, file, path)
             if source is not None:
                 return source
-        entry = self._entry(ref)
+        return self._handle_source(ref, self._entry(ref), path)
+
+    def _handle_source(self, ref: EpisodeRef, entry: _Open, path: str, depth: int = 0) -> FrameSource:
+        """``path``'s source through the open handle, kept with it; a residual's per-frame base is a source of
+        the same handle (so it lives as long), a per-episode one is read whole and kept like small arrays."""
         source = entry.frames.get(path)
         if source is None:
-            source = entry.frames[path] = handle_source(entry.handle, path)
+            source = handle_source(entry.handle, path, lambda base: self._handle_base(ref, entry, base, depth), depth)
+            entry.frames[path] = source
             self._record(ref, entry, frames={path: source.chunks.layout if source.chunks is not None else None})
         return source
 
-    def _cached_source(self, ref: EpisodeRef, file: CachedFile, path: str) -> FrameSource | None:
+    def _handle_base(self, ref: EpisodeRef, entry: _Open, base: str, depth: int) -> FrameBase:
+        """A residual's base as ``_cached_base`` finds it again from the layout cache: kept whole when small
+        (``pure_ref_rgb``), else a source of the same handle."""
+        if is_whole_read(base):
+            return self._read_whole(ref, base)
+        return self._handle_source(ref, entry, base, depth + 1)
+
+    def _cached_source(self, ref: EpisodeRef, file: CachedFile, path: str, depth: int = 0) -> FrameSource | None:
+        """``path``'s source through the reader's own descriptor of ``file``, from its cached layout alone, or
+        ``None`` when the layout lacks it (or, for a residual, lacks its base: the handle path reads both)."""
         layout = file.layout.frames.get(path)
         if layout is None or layout.places is None:
             return None   # not recorded yet, or only h5py reads it
+        base = None
+        if layout.residual_of is not None:
+            if depth >= MAX_RESIDUAL_DEPTH:
+                return None   # never recorded so (the handle path raises first); let it report the chain
+            base = self._cached_base(ref, file, layout.residual_of, depth)
+            if base is None:
+                return None
         descriptor = self.files.descriptor(file)
         if descriptor < 0:
             return None
         source = FrameSource(layout.frame_shape, layout.dtype, FrameChunks(layout, descriptor),
-                             lambda frame: self._entry(ref).handle.read(path, frame))
+                             lambda frame: self._entry(ref).handle.read(path, frame), base)
         file.sources[path] = source
         return source
+
+    def _cached_base(self, ref: EpisodeRef, file: CachedFile, base: str, depth: int) -> FrameBase | None:
+        """A cached residual's base from the same file's layout only: a per-frame base's source then reads
+        through the same descriptor, so it stays valid exactly as long. ``None`` when not kept."""
+        if is_whole_read(base):
+            return file.layout.whole.get(base)
+        return file.sources.get(base) or self._cached_source(ref, file, base, depth + 1)
 
     @property
     def n_open(self) -> int:

@@ -19,8 +19,9 @@ from univtac_data.storage import DatasetWriter
 def make_episode(sensor: str = "gelsight_mini", n_frames: int = 4, episode_id: str = "ep0", *, seed: int = 0,
                  kind: str = "indenter", name: str = "sphere", cameras: tuple[str, ...] = (),
                  camera_depth: bool = False, objects: tuple[str, ...] = ("indenter",),
-                 rate_hz: float = 60.0) -> Episode:
-    """A conforming episode of ``n_frames`` frames for ``sensor``; ``seed`` changes every array."""
+                 rate_hz: float = 60.0, reference: bool = True) -> Episode:
+    """A conforming episode of ``n_frames`` frames for ``sensor``; ``seed`` changes every array.
+    ``reference``: hold each pad's ``pure_ref_rgb`` (so that the writer stores ``pure_rgb`` as its residual)."""
     profile = get_sensor(sensor)
     rng = np.random.default_rng(seed)
     h, w, n = profile.image_height_px, profile.image_width_px, profile.n_markers
@@ -44,6 +45,8 @@ def make_episode(sensor: str = "gelsight_mini", n_frames: int = 4, episode_id: s
         for u, v in ref.astype(int):
             marked[:, max(v - 2, 0):v + 3, max(u - 2, 0):u + 3] = 20
         arrays[f"tactile/{pad}/pure_rgb"] = pure
+        if reference:
+            arrays[f"tactile/{pad}/pure_ref_rgb"] = np.broadcast_to(base, (h, w, 3)).copy()
         arrays[f"tactile/{pad}/marked_rgb"] = marked
         arrays[f"tactile/{pad}/depth_um"] = depth
         arrays[f"tactile/{pad}/contact_mask"] = depth > 0

@@ -21,7 +21,7 @@ def test_info_summarises(tmp_path):
     result = cli("info", str(root))
     assert result.returncode == 0, result.stderr
     assert "episodes        3" in result.stdout and "frames          15" in result.stdout
-    assert "gelsight_mini (3)" in result.stdout and "1.0 (hdf5)" in result.stdout
+    assert "gelsight_mini (3)" in result.stdout and "2.0 (hdf5)" in result.stdout
     summary = json.loads(cli("info", str(root), "--json").stdout)
     assert summary["episodes"] == 3 and summary["frames"] == 15
     assert summary["bytes"] == sum(r.bytes for r in Dataset.open(root).index.values())
@@ -63,4 +63,4 @@ def test_usage_errors_exit_non_zero():
     assert cli().returncode == 2
     assert cli("convert", "a", "b").returncode == 2  # --to is required
     version = cli("--version")
-    assert version.returncode == 0 and "format 1.0" in version.stdout
+    assert version.returncode == 0 and "format 2.0" in version.stdout

@@ -52,11 +52,11 @@ def test_directory_that_is_not_a_dataset(tmp_path):
 def test_newer_major_version_in_info_json(tmp_path, storage):
     root = make_dataset(tmp_path / "ds", storage, 1)
     info = json.loads((root / "meta/info.json").read_text())
-    info["format_version"] = "2.0"
+    info["format_version"] = "3.0"
     (root / "meta/info.json").write_text(json.dumps(info))
-    with pytest.raises(FormatVersionError, match=r"format 2\.0.*reads format 1\.x"):
+    with pytest.raises(FormatVersionError, match=r"format 3\.0.*reads format 1\.x and 2\.x"):
         Dataset.open(root)
-    assert_one_line_error(cli("info", str(root)), "info.json", "2.0", "1.x")
+    assert_one_line_error(cli("info", str(root)), "info.json", "3.0", "2.x")
 
 
 def test_newer_minor_version_is_read(tmp_path):

@@ -58,7 +58,7 @@ def test_closed_loop_grasp_reaches_the_threshold_and_holds_it(shape):
     hold(sim, 0.3)
     for pad, gap in sim.gap_mm().items():
         assert -gap == pytest.approx(threshold, abs=0.02), pad
-    depth = max(int(f.tactile[p].depth_um.max()) for f in sim.frames for p in PADS) / 1000
+    depth = max(int(sim.pixels[f"tactile/{p}/depth_um"].array().max()) for p in PADS) / 1000
     assert depth <= threshold + 0.1  # the approach overshoots by less than 0.1 mm
     assert depth < get_sensor("gelsight_mini").safe_indentation_mm
 

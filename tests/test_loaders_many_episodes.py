@@ -121,9 +121,13 @@ def test_the_cache_stays_within_its_budget(root: Path, h5py_opens: list[str]) ->
     one_episode = TactileFrameDataset(root, compact=True, episodes=["ep0"])
     for index in range(len(one_episode)):
         one_episode[index]
-    per_episode = one_episode.reader.layouts.nbytes
+    cache = one_episode.reader.layouts
+    layout = cache.get(str(root / "episodes" / "ep0.h5"))
+    assert layout is not None and set(layout.pooled) == {"tactile/left/pure_ref_rgb", "tactile/right/pure_ref_rgb"}
+    per_episode, pooled = layout.nbytes, cache.nbytes - layout.nbytes
     assert 0 < per_episode < 64 * 1024
-    budget = 2.5 * per_episode   # two whole episodes (more partly recorded ones)
+    assert pooled == 240 * 320 * 3   # both pads' pure_ref_rgb, the same background image: kept and counted once
+    budget = pooled + 2.5 * per_episode   # two whole episodes (more partly recorded ones); every episode shares it
     ds = TactileFrameDataset(root, compact=True, layout_cache_mib=budget / 2**20, **BOUNDS)
     reference = plain(root, compact=True)
     for indices in shuffled_batches(len(ds), 8, 0) + shuffled_batches(len(ds), 8, 1):

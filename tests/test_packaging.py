@@ -40,7 +40,7 @@ def test_every_package_is_listed_in_pyproject():
 def test_public_api_is_declared():
     for name in univtac_data.__all__:
         assert hasattr(univtac_data, name), name
-    assert univtac_data.FORMAT_VERSION == "1.0"
+    assert univtac_data.FORMAT_VERSION == "2.0"
 
 
 @pytest.mark.slow

@@ -169,7 +169,7 @@ def test_hdf5_refuses_urls():
 def test_info_json_lists_profiles_and_fields(tmp_path, storage):
     root = make_dataset(tmp_path / "ds", storage, 1, sensor="xense_ws")
     info = json.loads((root / "meta" / "info.json").read_text())
-    assert info["format_version"] == "1.0" and info["storage"] == storage
+    assert info["format_version"] == "2.0" and info["storage"] == storage
     assert info["sensors"]["xense_ws"]["n_markers"] == 220
     assert {f["path"] for f in info["fields"]} >= {"tactile/{pad}/depth_um", "robot/action"}
 

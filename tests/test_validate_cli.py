@@ -74,7 +74,7 @@ def test_unusable_input_exits_2_with_one_line(tmp_path, clean_root, capsys, setu
 
         shutil.copytree(clean_root, path)
         info = json.loads((path / "meta" / "info.json").read_text())
-        (path / "meta" / "info.json").write_text(json.dumps({**info, "format_version": "2.0"}))
+        (path / "meta" / "info.json").write_text(json.dumps({**info, "format_version": "3.0"}))
     assert run_cli(str(path)) == 2
     err = capsys.readouterr().err
     assert err.startswith("univtac-data: error: ") and str(path) in err and err.count("\n") == 1

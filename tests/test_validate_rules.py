@@ -100,6 +100,10 @@ def smudge(ep: Episode) -> None:
     ep["tactile/right/marked_rgb"][2, 0:3, 0:3] = 0  # far from every marker
 
 
+def wrong_reference(ep: Episode) -> None:
+    ep["tactile/left/pure_ref_rgb"][:] //= 2  # not what the untouched gel looks like (frame 0 is untouched)
+
+
 def energy_injection(ep: Episode) -> None:
     ep["scene/objects/indenter/pose"][2:, 0] += 0.02  # 1.2 m/s kick; the gripper moves at 0.06 m/s
 
@@ -132,6 +136,7 @@ CASES: dict[str, tuple[Callable[[Episode], None], set[str]]] = {
     "marker_off_image": (marker_off_image, {"physics.markers_in_image", "physics.marked_pure"}),
     "marker_off_grid_at_rest": (marker_off_grid_at_rest, {"physics.markers_at_rest"}),
     "smudge": (smudge, {"physics.marked_pure"}),
+    "wrong_reference": (wrong_reference, {"physics.reference_untouched"}),
     "energy_injection": (energy_injection, {"physics.kinetic_energy"}),
     "gripper_in_mm": (gripper_in_mm, {"schema.units"}),
     "bad_primitive": (bad_primitive, {"schema.primitive_index"}),

@@ -151,10 +151,10 @@ def test_sensor_without_profile(root):
 
 
 def test_episode_of_another_major_version(root, storage):
-    edit_meta(root, storage, "ep1", format_version="2.0")
+    edit_meta(root, storage, "ep1", format_version="3.0")
     report = validate(root)
     assert {"schema.format_version", "schema.checksums"} == failing(report, "ep1")
-    assert "2.0" in report.episodes["ep1"].check("schema.format_version").findings[0].message
+    assert "3.0" in report.episodes["ep1"].check("schema.format_version").findings[0].message
     assert report.episodes["ep0"].ok
 
 
@@ -216,7 +216,7 @@ def test_unusable_input_raises_one_clear_error(tmp_path, make, error):
 
 def test_dataset_of_another_major_version_is_refused(root):
     info = json.loads((root / "meta" / "info.json").read_text())
-    info["format_version"] = "2.0"
+    info["format_version"] = "3.0"
     (root / "meta" / "info.json").write_text(json.dumps(info))
     with pytest.raises(FormatVersionError, match="info.json"):
         validate(root)

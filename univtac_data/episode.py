@@ -11,6 +11,7 @@ import numpy as np
 from univtac_data.schema.fields import FIELDS, FieldSpec, expand_paths, field_for_path
 from univtac_data.schema.models import EpisodeMeta
 from univtac_data.schema.sensors import SensorProfile
+from univtac_data.version import FORMAT_VERSION
 
 
 class EpisodeError(ValueError):
@@ -29,6 +30,13 @@ class Episode:
 
     def __getitem__(self, path: str) -> np.ndarray:
         return self.arrays[path]
+
+    def in_current_format(self) -> Episode:
+        """This episode as this package writes it: metadata stamped with ``FORMAT_VERSION`` (an episode read
+        from an older format keeps its arrays; the writer chooses the encoding)."""
+        if self.meta.format_version == FORMAT_VERSION:
+            return self
+        return Episode(meta=self.meta.model_copy(update={"format_version": FORMAT_VERSION}), arrays=self.arrays)
 
     def expected_paths(self) -> dict[str, FieldSpec]:
         """Concrete path -> spec for every field this episode may hold (required and optional)."""

@@ -46,6 +46,10 @@ class ValidationConfig(BaseModel):
         description="pixels farther than marker_radius_px + this from every current marker are 'away', px")
     marked_pure_tolerance_levels: int = Field(
         default=0, ge=0, le=255, description="largest abs(I_marked - I_pure) allowed away from markers, uint8 levels")
+    reference_tolerance_levels: float = Field(
+        default=2.0, ge=0, le=255,
+        description="largest mean abs(I_pure - pure_ref_rgb) allowed on a frame without indentation, uint8 "
+                    "levels (sensor noise of a few levels averages below it)")
     # --- physics: kinetic energy ---------------------------------------------------------------------
     gravity_m_s2: float = Field(
         default=9.81, gt=0, description="the most gravity can add to an object's speed per second, m/s^2")

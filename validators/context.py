@@ -22,7 +22,7 @@ from univtac_data.storage.fs import Location
 from univtac_data.validators.config import ValidationConfig
 from univtac_data.validators.registry import Skip
 from univtac_data.validators.report import Finding
-from univtac_data.version import FORMAT_MINOR, parse_format_version
+from univtac_data.version import is_newer_minor
 
 STREAMED_CODECS = ("image", "depth")
 
@@ -87,7 +87,7 @@ class EpisodeContext:
     @property
     def newer_minor(self) -> bool:
         """Written by a newer minor version of the format: unknown fields are allowed and ignored."""
-        return parse_format_version(self.meta.format_version)[1] > FORMAT_MINOR
+        return is_newer_minor(self.meta.format_version)
 
     def require_profile(self) -> SensorProfile:
         if self.profile is None:

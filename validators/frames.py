@@ -7,6 +7,8 @@ Summaries (each a float64 array of length T, NaN at frames that could not be rea
 * ``{pad}/marked_pure_diff_levels``: largest |I_marked - I_pure| over the pixels away from every current
   marker (farther than marker_radius_px + marker_clearance_px), uint8 levels;
 * ``{pad}/marked_pure_diff_px``: how many of those pixels differ by more than the tolerance;
+* ``{pad}/reference_diff_levels``: at frames with no indentation, mean |I_pure - pure_ref_rgb| over the
+  image, uint8 levels (NaN at indented frames and when the episode holds no ``pure_ref_rgb``);
 * ``camera/{name}/depth_nonfinite_px``: non-finite pixels of a scene camera's depth.
 
 A block that fails to decode is retried frame by frame, so a damaged chunk is reported with its frames.
@@ -102,6 +104,24 @@ def _pad_block(ctx: EpisodeContext, pad: str, start: int, stop: int,
         counts = np.count_nonzero(mask[0].reshape(stop - start, -1), axis=1).astype(np.float64)
         out[start:stop] = np.where(mask[1], counts, np.nan)
     _marked_pure_block(ctx, pad, start, stop, blocks)
+    _reference_block(ctx, pad, start, stop, blocks)
+
+
+def _reference_block(ctx: EpisodeContext, pad: str, start: int, stop: int,
+                     blocks: dict[str, tuple[np.ndarray | None, np.ndarray]]) -> None:
+    reference = ctx.arrays.get(f"tactile/{pad}/pure_ref_rgb")
+    pure = blocks.get(f"tactile/{pad}/pure_rgb")
+    depth = blocks.get(f"tactile/{pad}/depth_um")
+    if reference is None or pure is None or depth is None or pure[0] is None or depth[0] is None \
+            or reference.shape != pure[0].shape[1:]:
+        return
+    out = ctx.summaries.get(f"{pad}/reference_diff_levels")
+    out = _new(ctx, f"{pad}/reference_diff_levels") if out is None else out
+    untouched = (depth[0].reshape(stop - start, -1).max(axis=1) == 0) & pure[1] & depth[1]
+    for k in np.flatnonzero(untouched):  # only frames without indentation: usually the approach
+        frame = pure[0][k]
+        diff = np.maximum(frame, reference) - np.minimum(frame, reference)
+        out[start + k] = float(diff.mean())
 
 
 def _marked_pure_block(ctx: EpisodeContext, pad: str, start: int, stop: int,

@@ -10,7 +10,7 @@ from univtac_data.storage.dataset import episode_digest
 from univtac_data.validators.context import DatasetView, EpisodeContext, EpisodeSource
 from univtac_data.validators.registry import Skip, collect, frame_finding, rule
 from univtac_data.validators.report import Finding
-from univtac_data.version import FORMAT_MAJOR, FORMAT_VERSION, parse_format_version
+from univtac_data.version import FORMAT_VERSION, READABLE_MAJORS, parse_format_version
 
 
 @rule("schema.readable", "schema")
@@ -28,9 +28,10 @@ def format_version(ctx: EpisodeContext) -> list[Finding]:
     # Opening an episode of another major version fails before a context exists, and the runner reports
     # that under this rule; this covers a context built some other way.
     major = parse_format_version(ctx.meta.format_version)[0]
-    if major != FORMAT_MAJOR:
+    if major not in READABLE_MAJORS:
+        readable = " and ".join(f"{m}.x" for m in sorted(READABLE_MAJORS))
         return [Finding(message=f"{ctx.where}: written in format {ctx.meta.format_version}; this reader reads "
-                                f"format {FORMAT_MAJOR}.x only", field="format_version")]
+                                f"format {readable} only", field="format_version")]
     return []
 
 
@@ -205,8 +206,11 @@ def primitive_index(ctx: EpisodeContext) -> list[Finding]:
 def field_table(view: DatasetView) -> list[Finding]:
     """info.json's field table agrees with this reader's: dtype, shape, unit and frame of every path."""
     theirs = {f.path: f for f in view.info.fields}
+    version = parse_format_version(view.info.format_version)
     out = []
     for ours in FIELDS:
+        if parse_format_version(ours.since) > version:
+            continue  # added after the dataset's version
         spec = theirs.get(ours.path)
         if spec is None:
             out.append(Finding(message=f"info.json: field {ours.path} is missing from the field table",

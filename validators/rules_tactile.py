@@ -1,6 +1,6 @@
 """Physical invariants of the tactile channels: depth within the gel, no depth or force without contact,
-markers inside the image and at rest when nothing touches, and markers the only difference between
-I_marked and I_pure.
+markers inside the image and at rest when nothing touches, markers the only difference between
+I_marked and I_pure, and I_pure equal to the episode's undeformed-gel image when nothing indents the gel.
 
 Like the other physics rules these ignore non-finite values and unreadable frames (reported elsewhere).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from univtac_data.validators.context import EpisodeContext
-from univtac_data.validators.registry import collect, frame_finding, rule
+from univtac_data.validators.registry import Skip, collect, frame_finding, rule
 from univtac_data.validators.report import Finding
 from univtac_data.validators.rules_safety import depth_over
 
@@ -108,4 +108,21 @@ def marked_pure(ctx: EpisodeContext) -> list[Finding]:
             finding = finding.model_copy(update={
                 "message": f"{finding.message}; {int(pixels[first])} pixel(s) differ at frame {first}"})
         out.append(finding)
+    return collect(out)
+
+
+@rule("physics.reference_untouched", "physics", threshold="reference_tolerance_levels")
+def reference_untouched(ctx: EpisodeContext) -> list[Finding]:
+    """Where a pad's gel is not indented (depth 0 everywhere), I_pure matches the episode's pure_ref_rgb (the
+    undeformed gel's image) within reference_tolerance_levels on average. Skipped without pure_ref_rgb."""
+    tol, out = ctx.config.reference_tolerance_levels, []
+    pads = [pad for pad in ctx.meta.pads if f"{pad}/reference_diff_levels" in ctx.summaries]
+    if not pads:
+        raise Skip("no pad holds pure_ref_rgb (optional; written since format 2.0)")
+    for pad in pads:
+        levels = ctx.summary(f"{pad}/reference_diff_levels")
+        out.append(frame_finding(f"tactile/{pad}/pure_rgb", levels > tol, levels,
+                                 "differ from pure_ref_rgb without any indentation (value: mean difference in "
+                                 "levels; is pure_ref_rgb this sensor's undeformed image?)",
+                                 ctx.config.max_listed_frames, unit="levels"))
     return collect(out)

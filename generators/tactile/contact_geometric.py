@@ -31,8 +31,7 @@ __all__ = ["solve_geometric"]
 
 def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig) -> ContactResult:
     """Geometric contact of the gap field (ny, nx) mm on ``grid``; see the module docstring."""
-    overlap = np.maximum(-gap_mm, 0.0)
-    mask = overlap > 0.0
+    mask = gap_mm < 0.0
     depth = np.zeros(grid.shape)
     pressure = np.zeros(grid.shape)
     rows = np.flatnonzero(mask.any(axis=1))
@@ -46,7 +45,7 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
         slice(max(rows[0] - grow_r, 0), min(rows[-1] + 1 + grow_r, grid.shape[0])),
         slice(max(cols[0] - grow_c, 0), min(cols[-1] + 1 + grow_c, grid.shape[1])),
     )
-    o = overlap[win]
+    o = np.maximum(-gap_mm[win], 0.0)  # the overlap, zero off the contact (which lies inside the window)
     # the blur in single precision: depth is stored in whole micrometres, float32 resolves 1e-6 mm at 10 mm
     o_single = o.astype(np.float32)
     d = o_single

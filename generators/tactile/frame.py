@@ -23,7 +23,7 @@ from .sensor_model import (
 )
 from .shear import ContactState, solve_shear
 
-__all__ = ["TactileConfig", "TactileFrame", "simulate_frame"]
+__all__ = ["TactileConfig", "TactileFrame", "render_reference", "simulate_frame"]
 
 CONTACT_TOL_MM = 1e-3
 """A pixel is in contact when the gel surface is within this distance of the object (1 um, the depth_um
@@ -138,6 +138,17 @@ def _block_mean_of_load(pressure: np.ndarray, factor: int) -> np.ndarray:
                   slice(win[1].start // factor, -(-win[1].stop // factor)))
         out[coarse] = downsample_mean(pressure[win], factor, "constant")
     return out
+
+
+def render_reference(profile: SensorProfile, config: TactileConfig = TactileConfig()) -> np.ndarray:
+    """I_pure (H, W, 3) uint8 of the undeformed gel (no contact, no noise) with the optics ``simulate_frame``
+    uses: the episode's ``pure_ref_rgb``, the sensor's background frame."""
+    flat = np.zeros((profile.image_height_px, profile.image_width_px))
+    if config.optics == "calibrated":
+        if config.calibration is None:
+            raise ValueError("optics='calibrated' needs TactileConfig.calibration (load_taxim_calibration(folder))")
+        return config.calibration.render(flat, (profile.mm_per_px_x, profile.mm_per_px_y))
+    return render_shaded(flat, profile, config.shading)
 
 
 def simulate_frame(

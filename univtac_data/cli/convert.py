@@ -14,9 +14,12 @@ from univtac_data.storage import STORES, CorruptFileError, Dataset, DatasetWrite
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
-        "convert", help="copy a dataset into another storage backend, losslessly, and verify it",
-        description="Copy every episode of SRC into DST in the chosen backend, then reopen DST and check each "
-                    "episode's content hash against the source. Rerun to resume an interrupted conversion.",
+        "convert", help="copy a dataset into another storage backend or the current format version, losslessly, "
+                        "and verify it",
+        description="Copy every episode of SRC into DST in the chosen backend and the current format version "
+                    "(an older version is upgraded: metadata restamped, images stored as residuals), then reopen "
+                    "DST and check each episode's content hash against the source. Rerun to resume an "
+                    "interrupted conversion.",
     )
     parser.add_argument("src", help="source dataset directory or URL")
     parser.add_argument("dst", help="destination directory or URL (new, or a partial conversion to resume)")
@@ -31,7 +34,8 @@ def convert(src: str, dst: str, to: str, progress: bool = True) -> int:
     expected: dict[str, str] = {}
     for episode_id in tqdm(source.episode_ids, desc="convert", unit="episode", disable=not progress,
                            file=sys.stderr):
-        episode = source.load_episode(episode_id)
+        # an older format's episode is upgraded on the way (the writer stamps its own version)
+        episode = source.load_episode(episode_id).in_current_format()
         expected[episode_id] = content_hash(episode)
         if not writer.has(episode_id):
             writer.add(episode)

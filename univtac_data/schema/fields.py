@@ -30,13 +30,19 @@ class FieldSpec(BaseModel):
     sampling: Sampling
     required: bool
     codec: Codec = Field(description="storage class; see the spec's 'Encoding' section")
+    since: str = Field(default="1.0", description="format version that added the field")
+    residual_of: str | None = Field(
+        default=None, description="field whose values the 2.0 writer subtracts (modulo 256) before compressing, "
+                                  "when the episode holds it; same placeholders as path")
     description: str
 
 
 def _f(path: str, dtype: str, shape: tuple[str | int, ...], unit: str, frame: str, description: str, *,
-       symbol: str = "", sampling: Sampling = "per_frame", required: bool = True, codec: Codec = "small") -> FieldSpec:
+       symbol: str = "", sampling: Sampling = "per_frame", required: bool = True, codec: Codec = "small",
+       residual_of: str | None = None, since: str = "1.0") -> FieldSpec:
     return FieldSpec(path=path, symbol=symbol, dtype=dtype, shape=shape, unit=unit, frame=frame,  # type: ignore[arg-type]
-                     sampling=sampling, required=required, codec=codec, description=description)
+                     sampling=sampling, required=required, codec=codec, residual_of=residual_of, since=since,
+                     description=description)
 
 
 FIELDS: tuple[FieldSpec, ...] = (
@@ -44,9 +50,13 @@ FIELDS: tuple[FieldSpec, ...] = (
        "time of each recorded frame since the episode's start; strictly increasing, nominally k * 1e9 / rate"),
     # --- tactile, per pad -------------------------------------------------------------------------
     _f("tactile/{pad}/marked_rgb", "uint8", ("T", "H", "W", 3), "-", "image", "tactile image with markers, RGB",
-       symbol="I_marked", codec="image"),
+       symbol="I_marked", codec="image", residual_of="tactile/{pad}/pure_rgb"),
     _f("tactile/{pad}/pure_rgb", "uint8", ("T", "H", "W", 3), "-", "image", "marker-free tactile image, RGB",
-       symbol="I_pure", codec="image"),
+       symbol="I_pure", codec="image", residual_of="tactile/{pad}/pure_ref_rgb"),
+    _f("tactile/{pad}/pure_ref_rgb", "uint8", ("H", "W", 3), "-", "image",
+       "marker-free image of the undeformed gel (no contact): the sensor's background frame, RGB; "
+       "I_pure - pure_ref_rgb is the usual difference image", sampling="per_episode", required=False,
+       codec="image", since="2.0"),
     _f("tactile/{pad}/depth_um", "uint16", ("T", "H", "W"), "um", "gel pad centre (-z)",
        "indentation depth of the gel surface at each pixel, >= 0, integer micrometres (mm = value / 1000)",
        symbol="D", codec="depth"),

@@ -104,7 +104,7 @@ class EpisodeMeta(_Model):
         if self.tactile_object is not None and self.tactile_object not in self.objects:
             raise ValueError(f"tactile_object {self.tactile_object!r} is not in objects {self.objects}")
         if tuple(self.action_names) != ACTION_NAMES:
-            raise ValueError(f"action_names must be {list(ACTION_NAMES)} in format 1.x (got {self.action_names})")
+            raise ValueError(f"action_names must be {list(ACTION_NAMES)} in formats 1.x and 2.x (got {self.action_names})")
         return self
 
 

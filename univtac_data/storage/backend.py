@@ -18,6 +18,7 @@ from univtac_data.version import check_readable
 
 META_ATTR = "univtac_meta"
 VERSION_ATTR = "format_version"
+MAX_RESIDUAL_DEPTH = 4  # 2.0 writers chain two (marked_rgb -> pure_rgb -> pure_ref_rgb)
 
 
 def _prune_unknown(model: type[BaseModel], data: Any) -> Any:
@@ -78,6 +79,45 @@ class EpisodeHandle(ABC):
     @abstractmethod
     def _layout_raw(self, path: str) -> tuple[tuple[int, ...], np.dtype]: ...
 
+    @abstractmethod
+    def _residual_of_raw(self, path: str) -> Any:
+        """The array's ``residual_of`` attribute as stored, or None."""
+
+    def residual_base(self, path: str) -> str | None:
+        """The array ``path`` is stored as a residual of (its ``residual_of`` attribute), or None when it is
+        stored as is. Checked: the base exists in this episode, is not itself, has the same unsigned integer
+        dtype, and has the array's shape or its shape without the leading frame axis (a per-episode base).
+        Raises ``KeyError`` when ``path`` is absent, ``CorruptFileError`` naming the file when the attribute
+        is wrong."""
+        cache: dict[str, str | None] = self.__dict__.setdefault("_residual_bases", {})
+        if path in cache:
+            return cache[path]
+        shape, dtype = self.layout(path)
+        try:
+            raw = self._residual_of_raw(path)
+        except KeyError:
+            raise
+        except Exception as error:
+            raise CorruptFileError(f"{self.where}: cannot read the attributes of {path} "
+                                   f"({type(error).__name__}: {error})") from None
+        if raw is None:
+            cache[path] = None
+            return None
+        base = raw.decode() if isinstance(raw, bytes) else raw
+        what = f"{self.where}: {path} is stored as a residual of {base!r}"
+        if not isinstance(base, str) or base == path:
+            raise CorruptFileError(f"{what}, which is not another array of the episode")
+        try:
+            base_shape, base_dtype = self.layout(base)
+        except KeyError:
+            raise CorruptFileError(f"{what}, which is missing") from None
+        if base_dtype != dtype or dtype.kind != "u":
+            raise CorruptFileError(f"{what}, whose dtype {base_dtype} is not the array's unsigned {dtype}")
+        if base_shape not in (shape, shape[1:]):
+            raise CorruptFileError(f"{what}, whose shape {base_shape} is neither {shape} nor {shape[1:]}")
+        cache[path] = base
+        return base
+
     def layout(self, path: str) -> tuple[tuple[int, ...], np.dtype]:
         """``(shape, dtype)`` of ``path`` as stored, without reading its data (a bool field is stored as
         uint8). Raises ``KeyError`` when absent, ``CorruptFileError`` when its metadata cannot be read."""
@@ -94,20 +134,45 @@ class EpisodeHandle(ABC):
     def close(self) -> None: ...
 
     def read(self, path: str, index: Any = ()) -> np.ndarray:
-        """Array ``path`` (or ``index`` of it: an int frame, a slice...) in its logical dtype.
+        """Array ``path`` (or ``index`` of it: an int frame, a slice...) in its logical dtype, residuals
+        added back.
 
         Raises ``CorruptFileError`` naming the file when the data cannot be decoded or fails its checksum.
         """
+        array = self._read_stored(path, index, depth=0)
         spec = field_for_path(path)
+        if spec is not None and spec.dtype == "bool":
+            return array != 0
+        return array
+
+    def _read_stored(self, path: str, index: Any, depth: int) -> np.ndarray:
+        """The values of ``path`` at ``index`` in the storage dtype: stored values plus, for a residual, the
+        values of its base (itself possibly a residual, resolved first; modulo 2^bits)."""
         try:
-            array = self._read_raw(path, index)
+            base = self.residual_base(path)
+            array = np.asarray(self._read_raw(path, index))
         except KeyError:
             raise CorruptFileError(f"{self.where}: field {path} is missing") from None
+        except CorruptFileError:
+            raise
         except Exception as error:  # h5py/zarr/blosc raise many types for damaged chunks
             raise CorruptFileError(f"{self.where}: cannot read {path} ({type(error).__name__}: {error})") from None
-        if spec is not None and spec.dtype == "bool":
-            return np.asarray(array) != 0
-        return np.asarray(array)
+        if base is None:
+            return array
+        if depth >= MAX_RESIDUAL_DEPTH:
+            raise CorruptFileError(f"{self.where}: {path} is a residual of a residual more than "
+                                   f"{MAX_RESIDUAL_DEPTH} deep (a cycle?)")
+        shape, _ = self.layout(path)
+        base_shape, _ = self.layout(base)
+        if base_shape == shape:
+            base_values = self._read_stored(base, index, depth + 1)
+        else:  # a per-episode base: the same for every frame
+            whole = self._read_stored(base, (), depth + 1)
+            base_values = np.broadcast_to(whole, shape)[index]
+        if not array.flags.writeable:
+            array = array.copy()
+        np.add(array, base_values, out=array, casting="unsafe")  # unsigned: wraps modulo 2^bits
+        return array
 
     def load(self) -> Episode:
         """Every array the format defines, read whole (paths a newer minor version added are skipped)."""

@@ -33,6 +33,7 @@ from univtac_data.storage.errors import (
     DatasetError,
     DatasetNotFoundError,
     EpisodeExistsError,
+    FormatVersionError,
     NotADatasetError,
 )
 from univtac_data.storage.fs import TMP_PREFIX, Location, fsync_dir
@@ -45,6 +46,7 @@ from univtac_data.storage.index import (
     write_manifest,
 )
 from univtac_data.storage.zarr_store import ZarrStore
+from univtac_data.version import FORMAT_MAJOR, FORMAT_VERSION, parse_format_version
 
 EPISODES_DIR = "episodes"
 STORES: dict[str, EpisodeStore] = {"hdf5": HDF5Store(), "zarr": ZarrStore()}
@@ -128,6 +130,7 @@ def write_episode_file(loc: Location, storage: str, episode: Episode) -> Written
     with ``DatasetWriter.commit``.
     """
     store = get_store(storage)
+    episode = episode.in_current_format()  # writers write the version they implement (spec, section 2)
     check_episode(episode, get_sensor(episode.meta.sensor))
     episode_id = episode.meta.episode_id
     final_rel = episode_relpath(episode_id, store)
@@ -249,6 +252,10 @@ class DatasetWriter:
             info = read_info(loc)
             if info.storage != storage:
                 raise DatasetError(f"{loc.url}: holds a {info.storage} dataset, not {storage}")
+            if parse_format_version(info.format_version)[0] != FORMAT_MAJOR:
+                raise FormatVersionError(
+                    f"{loc.url}: holds a format {info.format_version} dataset; this writer writes format "
+                    f"{FORMAT_VERSION}; convert it first: univtac-data convert {loc.url} NEW_PATH --to {storage}")
         else:
             if loc.exists() and loc.listdir(""):
                 raise NotADatasetError(f"{loc.url}: directory is not empty and holds no univtac-data dataset")

@@ -11,6 +11,13 @@ Why these choices (the spec's 'Encoding' section says the same):
 * depth is integer micrometres, byte-shuffled like everything else: on generated frames (all 14 indenters,
   both contact models) that is a quarter smaller, and faster to write and to read, than the bit-shuffle the
   first release used (benchmarks/codecs.py);
+* tactile images are stored as residuals (format 2.0): ``marked_rgb`` minus ``pure_rgb`` is zero away from
+  the markers, and ``pure_rgb`` minus the episode's ``pure_ref_rgb`` is zero away from the contact, so the
+  compressor sees mostly zeros. On generated GelSight Mini and GF225 frames that halves the bytes of an image
+  pair and the time to compress it (benchmarks/codecs.py); decoding is one uint8 addition per frame;
+* Blosc blocks of 128 KiB instead of Blosc's automatic size (tens of KiB at level 1): Zstandard finds the
+  long zero runs of residuals across block borders, and fewer blocks cost less; the block size is in each
+  chunk's header, so readers need nothing new;
 * every chunk carries a checksum (HDF5 Fletcher-32, Zarr CRC32C) so flipped bytes are found on read;
 * Zarr shards group up to ``SHARD_FRAMES`` frames into one object: few files on object stores, while the
   chunk stays the unit of reading.
@@ -32,6 +39,9 @@ SHARD_FRAMES = 128
 DENSE_CHUNK_FRAMES = 64
 SMALL_CHUNK_FRAMES = 4096
 ZSTD_LEVEL = 1
+FRAME_BLOCK_BYTES = 1 << 17  # Blosc block size of one-frame chunks (0 elsewhere: Blosc chooses)
+#: The attribute of an array stored as a residual: the path of the array it is a residual of.
+RESIDUAL_ATTR = "residual_of"
 
 
 @dataclass(frozen=True)
@@ -44,6 +54,8 @@ class Encoding:
     blosc_clevel: int
     shuffle: Literal["byte", "bit"]
     storage_dtype: str  # bool fields are stored as uint8 0/1
+    blosc_blocksize: int = 0  # bytes; 0 lets Blosc choose
+    frame_chunks: bool = False  # per-frame array chunked one frame per chunk (images, depth, masks)
 
 
 def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
@@ -63,15 +75,51 @@ def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
         shard_t = None  # type: ignore[assignment]
     rest_chunks = tuple(max(1, s) for s in rest)
     shards = None if shard_t is None or shard_t == chunk_t else (shard_t, *rest_chunks)
-    return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, "byte", storage_dtype)
+    frame_chunks = spec.codec in ("image", "depth")
+    return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, "byte", storage_dtype,
+                    FRAME_BLOCK_BYTES if frame_chunks else 0, frame_chunks)
 
 
-def encoded_arrays(episode: Episode) -> Iterator[tuple[str, np.ndarray, Encoding]]:
-    """Each array of a checked episode, in path order, in its storage dtype, with its encoding."""
+@dataclass(frozen=True)
+class EncodedArray:
+    """One array of an episode as a writer stores it: the logical values in the storage dtype, the encoding,
+    and the sibling array it is stored as a residual of (``None``: stored as is)."""
+
+    path: str
+    data: np.ndarray
+    encoding: Encoding
+    residual_of: str | None
+    base: np.ndarray | None  # the values of ``residual_of``, in the storage dtype
+
+    def stored(self, frame: int | None = None) -> np.ndarray:
+        """What goes on disk: the whole array, or one frame of it; ``(data - base) mod 256`` for a residual."""
+        data = self.data if frame is None else self.data[frame]
+        if self.base is None:
+            return data
+        base = self.base if frame is None or self.base.ndim < self.data.ndim else self.base[frame]
+        return np.subtract(data, base, dtype=data.dtype)  # unsigned: wraps modulo 2^bits, as the spec says
+
+
+def residual_base_path(path: str, spec: FieldSpec) -> str | None:
+    """The concrete sibling path that ``path`` (a concrete path of ``spec``) is a residual of, if any."""
+    if spec.residual_of is None:
+        return None
+    return path.rsplit("/", 1)[0] + "/" + spec.residual_of.rsplit("/", 1)[1]
+
+
+def encoded_arrays(episode: Episode) -> Iterator[EncodedArray]:
+    """Each array of a checked episode, in path order, in its storage dtype, with its encoding; image fields
+    whose residual base the episode holds are marked as residuals of it."""
     for path in sorted(episode.arrays):
         spec = field_for_path(path)
         if spec is None:
             raise ValueError(f"episode {episode.meta.episode_id}: {path} is not a field of the format")
         array = episode.arrays[path]
         encoding = encoding_for(spec, array.shape)
-        yield path, array.astype(encoding.storage_dtype, copy=False), encoding
+        data = array.astype(encoding.storage_dtype, copy=False)
+        base_path = residual_base_path(path, spec)
+        base = episode.arrays.get(base_path) if base_path is not None else None
+        if base is None or not data.size:
+            yield EncodedArray(path, data, encoding, None, None)
+        else:
+            yield EncodedArray(path, data, encoding, base_path, base.astype(encoding.storage_dtype, copy=False))

@@ -8,17 +8,35 @@ from typing import Any
 import h5py
 import hdf5plugin
 import numpy as np
+from numcodecs import blosc as numcodecs_blosc
+from numcodecs.fletcher32 import Fletcher32
 
 from univtac_data.episode import Episode, meta_json
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import Encoding, encoded_arrays
+from univtac_data.storage.encoding import RESIDUAL_ATTR, EncodedArray, Encoding, encoded_arrays
 from univtac_data.storage.errors import CorruptFileError, DatasetError
 from univtac_data.storage.fs import Location, fsync_tree
+
+
+_FLETCHER32 = Fletcher32()
 
 
 def _blosc(enc: Encoding) -> hdf5plugin.Blosc:
     mode = hdf5plugin.Blosc.BITSHUFFLE if enc.shuffle == "bit" else hdf5plugin.Blosc.SHUFFLE
     return hdf5plugin.Blosc(cname=enc.blosc_cname, clevel=enc.blosc_clevel, shuffle=mode)
+
+
+def write_frame_chunks(dataset: h5py.Dataset, item: EncodedArray) -> None:
+    """Write a one-frame-per-chunk array chunk by chunk, each exactly as HDF5's pipeline would store it
+    (Blosc, then Fletcher-32), so that any HDF5 reader decodes it. Encoding here rather than in the pipeline
+    sets Blosc's block size and makes a residual one frame at a time, not as a whole-episode copy."""
+    enc = item.encoding
+    shuffle = numcodecs_blosc.BITSHUFFLE if enc.shuffle == "bit" else numcodecs_blosc.SHUFFLE
+    zeros = (0,) * (item.data.ndim - 1)
+    for frame in range(item.data.shape[0]):
+        stream = numcodecs_blosc.compress(np.ascontiguousarray(item.stored(frame)), enc.blosc_cname.encode(),
+                                          enc.blosc_clevel, shuffle, enc.blosc_blocksize)
+        dataset.id.write_direct_chunk((frame, *zeros), _FLETCHER32.encode(stream))
 
 
 class HDF5Handle(EpisodeHandle):
@@ -56,6 +74,9 @@ class HDF5Handle(EpisodeHandle):
 
     def _read_raw(self, path: str, index: Any) -> np.ndarray:
         return self._dataset(path)[index]
+
+    def _residual_of_raw(self, path: str) -> Any:
+        return self._dataset(path).attrs.get(RESIDUAL_ATTR)
 
     def h5py_dataset(self, path: str) -> h5py.Dataset:
         """The open ``h5py.Dataset`` of an array path (cached), for readers that decode chunks themselves
@@ -100,15 +121,27 @@ class HDF5Store(EpisodeStore):
             raise DatasetError(f"{loc.url}: HDF5 datasets need a local path; use --format zarr for URLs")
         path = os.path.join(loc.root, relpath)
         # track_times=False and a fixed libver keep the bytes a function of the content: same seed, same file.
-        with h5py.File(path, "w", libver=("v110", "v110"), track_order=True) as handle:
-            handle.attrs[VERSION_ATTR] = episode.meta.format_version
-            handle.attrs[META_ATTR] = meta_json(episode.meta)
-            for array_path, data, enc in encoded_arrays(episode):
-                handle.create_dataset(
-                    array_path, data=data, chunks=enc.chunks if data.size else None, fletcher32=bool(data.size),
-                    track_times=False, **(_blosc(enc) if data.size else {}),
-                )
-            handle.flush()
+        threads = numcodecs_blosc.use_threads
+        numcodecs_blosc.use_threads = False  # one core per writer: the generator runs a writer per core
+        try:
+            with h5py.File(path, "w", libver=("v110", "v110"), track_order=True) as handle:
+                handle.attrs[VERSION_ATTR] = episode.meta.format_version
+                handle.attrs[META_ATTR] = meta_json(episode.meta)
+                for item in encoded_arrays(episode):
+                    data, enc = item.data, item.encoding
+                    per_frame_chunks = bool(data.size) and enc.frame_chunks
+                    dataset = handle.create_dataset(
+                        item.path, shape=data.shape, dtype=data.dtype,
+                        data=None if per_frame_chunks else item.stored(), chunks=enc.chunks if data.size else None,
+                        fletcher32=bool(data.size), track_times=False, **(_blosc(enc) if data.size else {}),
+                    )
+                    if item.residual_of is not None:
+                        dataset.attrs[RESIDUAL_ATTR] = item.residual_of
+                    if per_frame_chunks:
+                        write_frame_chunks(dataset, item)
+                handle.flush()
+        finally:
+            numcodecs_blosc.use_threads = threads
         fsync_tree(path)
 
     def open(self, loc: Location, relpath: str) -> HDF5Handle:

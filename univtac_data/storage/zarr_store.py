@@ -11,7 +11,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 
 from univtac_data.episode import Episode
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import encoded_arrays
+from univtac_data.storage.encoding import RESIDUAL_ATTR, encoded_arrays
 from univtac_data.storage.errors import CorruptFileError
 from univtac_data.storage.fs import Location, fsync_tree
 
@@ -63,6 +63,9 @@ class ZarrHandle(EpisodeHandle):
     def _read_raw(self, path: str, index: Any) -> np.ndarray:
         return np.asarray(self._array(path)[index])
 
+    def _residual_of_raw(self, path: str) -> Any:
+        return self._array(path).attrs.get(RESIDUAL_ATTR)
+
     def close(self) -> None:
         self._arrays.clear()
 
@@ -76,16 +79,18 @@ class ZarrStore(EpisodeStore):
         # The metadata is JSON already; store it as an object so zarr tools show it readably.
         group.attrs.update({VERSION_ATTR: episode.meta.format_version,
                             META_ATTR: json.loads(episode.meta.model_dump_json())})
-        for array_path, data, enc in encoded_arrays(episode):
+        for item in encoded_arrays(episode):
+            data, enc = item.data, item.encoding
             shuffle: Literal["bitshuffle", "shuffle"] = "bitshuffle" if enc.shuffle == "bit" else "shuffle"
             target = group.create_array(
-                name=array_path, shape=data.shape, dtype=data.dtype, chunks=enc.chunks,
+                name=item.path, shape=data.shape, dtype=data.dtype, chunks=enc.chunks,
                 shards=enc.shards, compressors=[BloscCodec(cname=enc.blosc_cname, clevel=enc.blosc_clevel,
-                                                           shuffle=shuffle), Crc32cCodec()],
-                fill_value=0,
+                                                           shuffle=shuffle, blocksize=enc.blosc_blocksize),
+                                                Crc32cCodec()],
+                fill_value=0, attributes={RESIDUAL_ATTR: item.residual_of} if item.residual_of else None,
             )
             if data.size:
-                target[...] = data
+                target[...] = item.stored()
         if loc.is_local:
             fsync_tree(loc.url_of(relpath))
 

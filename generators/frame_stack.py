@@ -1,0 +1,38 @@
+"""A growable per-frame array, filled as frames are recorded."""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The per-pixel arrays of a tactile frame that an episode records, by their name under ``tactile/{pad}/``.
+PIXEL_FIELDS = ("marked_rgb", "pure_rgb", "depth_um", "contact_mask")
+
+
+class FrameStack:
+    """A (T, ...) array filled one frame at a time: the episode's array, without holding every frame's own
+    array until the end and stacking them (for a 480 x 480 sensor that copy, and the page faults of memory
+    that is never reused while the frames stay alive, took a sixth of a generated frame).
+
+    ``capacity``: frames to allocate for at first (the episode's frame budget when known); doubles when full.
+    """
+
+    def __init__(self, capacity: int = 64) -> None:
+        self._capacity = max(1, capacity)
+        self._buffer: np.ndarray | None = None
+        self.frames = 0
+
+    def append(self, frame: np.ndarray) -> None:
+        if self._buffer is None:
+            self._buffer = np.empty((self._capacity, *frame.shape), frame.dtype)
+        elif self.frames == self._buffer.shape[0]:
+            grown = np.empty((2 * self._buffer.shape[0], *self._buffer.shape[1:]), self._buffer.dtype)
+            grown[: self.frames] = self._buffer
+            self._buffer = grown
+        self._buffer[self.frames] = frame
+        self.frames += 1
+
+    def array(self) -> np.ndarray:
+        """The frames so far, (T, ...); a view, valid until the next ``append``."""
+        if self._buffer is None:
+            raise ValueError("no frame recorded")
+        return self._buffer[: self.frames]

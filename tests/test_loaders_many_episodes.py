@@ -19,7 +19,6 @@ from univtac_data.loaders.chunks import ChunkPlaces, FrameLayout
 from univtac_data.loaders.files import CachedFile, EpisodeFiles
 from univtac_data.loaders.layouts import EpisodeLayout, FileIdentity, LayoutCache
 from univtac_data.storage.errors import CorruptFileError
-from univtac_data.storage.hdf5_store import HDF5Store
 
 ALL_FIELDS = tuple(FRAME_FIELDS)
 N_EPISODES, N_FRAMES = 6, 3          # 36 pad samples
@@ -29,20 +28,6 @@ BOUNDS = {"max_open_episodes": 2, "max_open_files": 2}   # far fewer than the ep
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_dataset(tmp_path_factory.mktemp("many") / "d", "hdf5", N_EPISODES, n_frames=N_FRAMES)
-
-
-@pytest.fixture
-def h5py_opens(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Every episode file opened with h5py from now on (any thread of this process)."""
-    opened: list[str] = []
-    original = HDF5Store.open
-
-    def counting(self: HDF5Store, loc: Any, relpath: str) -> Any:
-        opened.append(relpath)
-        return original(self, loc, relpath)
-
-    monkeypatch.setattr(HDF5Store, "open", counting)
-    return opened
 
 
 def plain(root: Path, **kwargs: Any) -> TactileFrameDataset:

@@ -25,7 +25,6 @@ from univtac_data.loaders.frames import Sample, convert_compact, convert_target,
 from univtac_data.loaders.layouts import POOL_MIN_BYTES, FileIdentity, LayoutCache
 from univtac_data.storage import Dataset, DatasetWriter
 from univtac_data.storage.errors import CorruptFileError
-from univtac_data.storage.hdf5_store import HDF5Store
 
 N_EPISODES, N_FRAMES, H, W = 3, 4, 240, 320
 PADS = ("left", "right")
@@ -87,20 +86,6 @@ def stored(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
     if request.param == "hdf5":
         assert_chunks_decode_directly(root / "episodes" / "ep0.h5", IMAGES)
     return root, written
-
-
-@pytest.fixture
-def h5py_opens(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Every episode file opened with h5py from now on (any thread of this process)."""
-    opened: list[str] = []
-    original = HDF5Store.open
-
-    def counting(self: HDF5Store, loc: Any, relpath: str) -> Any:
-        opened.append(relpath)
-        return original(self, loc, relpath)
-
-    monkeypatch.setattr(HDF5Store, "open", counting)
-    return opened
 
 
 def expected_sample(ds: TactileFrameDataset, index: int, written: dict[str, Episode]) -> Sample:

@@ -37,12 +37,17 @@ def _random_images(episode, seed: int = 7) -> None:
             episode.arrays[path] = rng.integers(0, 256, episode.arrays[path].shape, dtype=np.uint8)
 
 
-@pytest.mark.parametrize("storage", ["hdf5", "zarr"])
-def test_images_are_stored_as_residuals_and_read_back_exactly(tmp_path, storage):
+def _written_random_episode(tmp_path, storage: str):
     episode = make_episode(n_frames=3)
     _random_images(episode)
     root = tmp_path / "ds"
     DatasetWriter.open(root, storage=storage, sensors=["gelsight_mini"]).add(episode)
+    return episode, root
+
+
+@pytest.mark.parametrize("storage", ["hdf5", "zarr"])
+def test_images_are_stored_as_residuals_and_read_back_exactly(tmp_path, storage):
+    episode, root = _written_random_episode(tmp_path, storage)
 
     marked, marked_base = _raw(root, storage, "ep0", PAD + "marked_rgb")
     pure, pure_base = _raw(root, storage, "ep0", PAD + "pure_rgb")
@@ -195,3 +200,19 @@ def test_info_of_a_damaged_episode_still_exits_cleanly(tmp_path):
     _set_residual_of(root, "hdf5", PAD + "marked_rgb", PAD + "gone_rgb")
     assert_one_line_error(cli("preview", str(root), "--episode", "ep0", "--out", str(tmp_path / "p.png")),
                           "ep0", "gone_rgb")
+
+
+@pytest.mark.parametrize("storage", ["hdf5", "zarr"])
+def test_a_base_frame_read_for_a_residual_is_reused_but_never_shared(tmp_path, storage):
+    episode, root = _written_random_episode(tmp_path, storage)
+    with Dataset.open(root).open_episode("ep0") as handle:
+        calls: list[str] = []
+        raw = handle._read_raw
+        handle._read_raw = lambda path, index: (calls.append(path), raw(path, index))[1]  # type: ignore[method-assign]
+        handle.read(PAD + "marked_rgb", 1)             # decodes pure_rgb at frame 1 as its base
+        pure = handle.read(PAD + "pure_rgb", 1)        # the same frame again: no second decode
+        assert calls == [PAD + "marked_rgb", PAD + "pure_rgb", PAD + "pure_ref_rgb"]
+        np.testing.assert_array_equal(pure, episode.arrays[PAD + "pure_rgb"][1])
+        pure[...] = 0                                  # the caller owns what it gets
+        np.testing.assert_array_equal(handle.read(PAD + "pure_rgb", 1), episode.arrays[PAD + "pure_rgb"][1])
+        np.testing.assert_array_equal(handle.read(PAD + "pure_rgb", 2), episode.arrays[PAD + "pure_rgb"][2])

@@ -42,7 +42,11 @@ def _encoding_text(spec: FieldSpec) -> str:
         cap = DENSE_CHUNK_FRAMES if spec.codec == "dense" else SMALL_CHUNK_FRAMES
         chunk = [f"min(T, {cap})", *rest]
     stored = "" if enc.storage_dtype == spec.dtype else f", stored as {enc.storage_dtype} 0/1"
-    return f"chunks ({', '.join(chunk)}), blosc {enc.blosc_cname}:{enc.blosc_clevel} {enc.shuffle}-shuffle{stored}"
+    blocks = f" {enc.blosc_blocksize // 1024} KiB blocks" if enc.blosc_blocksize else ""
+    residual = (f", stored as residual of `{spec.residual_of.rsplit('/', 1)[1]}` when present"
+                if spec.residual_of else "")
+    return (f"chunks ({', '.join(chunk)}), blosc {enc.blosc_cname}:{enc.blosc_clevel} {enc.shuffle}-shuffle{blocks}"
+            f"{stored}{residual}")
 
 
 def render_fields_md() -> str:

@@ -69,6 +69,13 @@ class EpisodeHandle(ABC):
     meta: EpisodeMeta
     where: str
 
+    def __init__(self) -> None:
+        self._residual_bases: dict[str, str | None] = {}  # path -> checked residual base (None: stored as is)
+        self._episode_bases: dict[str, np.ndarray] = {}   # per-episode residual bases, read once
+        # the last single frame read as a residual base: reading I_marked at frame t decodes I_pure at t,
+        # which a reader usually asks for next (a sample holds both); through zarr a decode costs ~1.5 ms
+        self._last_base_frame: tuple[str, int, np.ndarray] | None = None
+
     @abstractmethod
     def paths(self) -> list[str]:
         """Concrete array paths stored in the episode, sorted."""
@@ -89,7 +96,7 @@ class EpisodeHandle(ABC):
         dtype, and has the array's shape or its shape without the leading frame axis (a per-episode base).
         Raises ``KeyError`` when ``path`` is absent, ``CorruptFileError`` naming the file when the attribute
         is wrong."""
-        cache: dict[str, str | None] = self.__dict__.setdefault("_residual_bases", {})
+        cache = self._residual_bases
         if path in cache:
             return cache[path]
         shape, dtype = self.layout(path)
@@ -148,6 +155,16 @@ class EpisodeHandle(ABC):
     def _read_stored(self, path: str, index: Any, depth: int) -> np.ndarray:
         """The values of ``path`` at ``index`` in the storage dtype: stored values plus, for a residual, the
         values of its base (itself possibly a residual, resolved first; modulo 2^bits)."""
+        frame = int(index) if isinstance(index, (int, np.integer)) and not isinstance(index, bool) else None
+        last = self._last_base_frame
+        if frame is not None and last is not None and last[0] == path and last[1] == frame:
+            return last[2].copy()  # a copy: the caller may write into what it gets
+        array = self._decode_stored(path, index, depth)
+        if frame is not None and depth > 0:  # read as a base: only the residual's addition sees this array
+            self._last_base_frame = (path, frame, array)
+        return array
+
+    def _decode_stored(self, path: str, index: Any, depth: int) -> np.ndarray:
         try:
             base = self.residual_base(path)
             array = np.asarray(self._read_raw(path, index))
@@ -166,8 +183,11 @@ class EpisodeHandle(ABC):
         base_shape, _ = self.layout(base)
         if base_shape == shape:
             base_values = self._read_stored(base, index, depth + 1)
-        else:  # a per-episode base: the same for every frame
-            whole = self._read_stored(base, (), depth + 1)
+        else:  # a per-episode base: the same for every frame, read once per handle (one image per pad)
+            kept = self._episode_bases
+            whole = kept.get(base)
+            if whole is None:
+                whole = kept[base] = self._read_stored(base, (), depth + 1)
             base_values = np.broadcast_to(whole, shape)[index]
         if not array.flags.writeable:
             array = array.copy()

@@ -41,6 +41,7 @@ def write_frame_chunks(dataset: h5py.Dataset, item: EncodedArray) -> None:
 
 class HDF5Handle(EpisodeHandle):
     def __init__(self, path: str, where: str) -> None:
+        super().__init__()
         self.where = where
         try:
             self._file = h5py.File(path, "r", locking=False)

@@ -24,6 +24,7 @@ def _store(loc: Location, relpath: str, mode: str) -> Any:
 
 class ZarrHandle(EpisodeHandle):
     def __init__(self, loc: Location, relpath: str) -> None:
+        super().__init__()
         self.where = loc.url_of(relpath)
         try:
             self._group = zarr.open_group(_store(loc, relpath, "r"), mode="r", zarr_format=3)

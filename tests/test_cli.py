@@ -64,3 +64,14 @@ def test_usage_errors_exit_non_zero():
     assert cli("convert", "a", "b").returncode == 2  # --to is required
     version = cli("--version")
     assert version.returncode == 0 and "format 2.0" in version.stdout
+
+
+def test_a_closed_stdout_is_not_an_error(tmp_path):
+    """`univtac-data info PATH | head -1`: the reader leaves early; no traceback, exit 0."""
+    root = make_dataset(tmp_path / "ds", "hdf5", 1, n_frames=2)
+    proc = subprocess.Popen([sys.executable, "-m", "univtac_data.cli.main", "info", str(root)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # before the command prints (importing takes far longer than this)
+    with proc.stderr:
+        stderr = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0 and "Traceback" not in stderr, stderr

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import zarr
 
-from tests.factories import make_dataset, make_episode
-from tests.test_errors import assert_one_line_error, cli
+from factories import make_dataset, make_episode
+from test_errors import assert_one_line_error, cli
 from univtac_data.cli.convert import convert
 from univtac_data.storage import CorruptFileError, Dataset, DatasetWriter, FormatVersionError
 

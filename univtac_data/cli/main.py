@@ -53,8 +53,11 @@ def entry() -> NoReturn:
     pools (Arrow's I/O pool, BLAS), which now and then aborted a finished run with "terminate called without
     an active exception" (exit -6) in CI-like runs, turning a success or a clean error into a crash.
     """
-    code = main()
-    sys.stdout.flush()
+    try:
+        code = main()
+        sys.stdout.flush()
+    except BrokenPipeError:  # the reader of stdout went away (`univtac-data info PATH | head`): not an error
+        code = 0
     sys.stderr.flush()
     os._exit(code)
 

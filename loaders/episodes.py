@@ -31,8 +31,7 @@ from typing import Any, Union
 import numpy as np
 
 from univtac_data.storage import Dataset
-from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle
-from univtac_data.storage.errors import CorruptFileError
+from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle, residual_chain_error
 from univtac_data.storage.hdf5_store import HDF5Handle
 from univtac_data.schema.fields import field_for_path
 
@@ -164,8 +163,7 @@ def handle_source(handle: EpisodeHandle, path: str, base_of: Callable[[str], Fra
     shape, dtype = handle.layout(path)   # KeyError when absent (the loader checked paths first)
     residual_of = handle.residual_base(path)
     if residual_of is not None and depth >= MAX_RESIDUAL_DEPTH:   # what handle.read raises for a cycle
-        raise CorruptFileError(f"{handle.where}: {path} is a residual of a residual more than "
-                               f"{MAX_RESIDUAL_DEPTH} deep (a cycle?)")
+        raise residual_chain_error(handle.where, path)
     chunks = _frame_chunks(handle, path, residual_of)
     base = None
     if chunks is not None and residual_of is not None:   # without chunks handle.read adds the base itself

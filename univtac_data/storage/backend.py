@@ -21,6 +21,13 @@ VERSION_ATTR = "format_version"
 MAX_RESIDUAL_DEPTH = 4  # 2.0 writers chain two (marked_rgb -> pure_rgb -> pure_ref_rgb)
 
 
+def residual_chain_error(where: str, path: str) -> CorruptFileError:
+    """The one-line error for a residual chain deeper than ``MAX_RESIDUAL_DEPTH`` (in practice a cycle), the
+    same from every reader of ``path`` in file ``where``."""
+    return CorruptFileError(f"{where}: {path} is a residual of a residual more than {MAX_RESIDUAL_DEPTH} deep "
+                            f"(a cycle?)")
+
+
 def _prune_unknown(model: type[BaseModel], data: Any) -> Any:
     """Drop keys a newer minor version added, so that this reader's models accept the rest."""
     if not isinstance(data, dict):
@@ -177,8 +184,7 @@ class EpisodeHandle(ABC):
         if base is None:
             return array
         if depth >= MAX_RESIDUAL_DEPTH:
-            raise CorruptFileError(f"{self.where}: {path} is a residual of a residual more than "
-                                   f"{MAX_RESIDUAL_DEPTH} deep (a cycle?)")
+            raise residual_chain_error(self.where, path)
         shape, _ = self.layout(path)
         base_shape, _ = self.layout(base)
         if base_shape == shape:

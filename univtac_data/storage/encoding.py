@@ -6,7 +6,7 @@ Why these choices (the spec's 'Encoding' section says the same):
   neighbours (ManiSkill and LeRobot users trip over whole-trajectory chunks and video decoding);
 * Blosc with Zstandard is lossless, fast to decode and available to HDF5 (hdf5plugin) and Zarr alike; level 1
   compresses residual images in half the time of level 3 for 6 to 11 % more bytes (benchmarks/codecs.py),
-  and generation writes every frame once. LZ4 writes faster and decodes in about half the time but makes
+  and generation writes every frame once. LZ4 writes faster and decodes in 45 to 70 % of the time but makes
   residual images 1.5 to 2.1 times larger (spec/format.md, section 9);
 * depth is integer micrometres, byte-shuffled like everything else: on generated frames (all 14 indenters,
   both contact models) that is a quarter smaller, and faster to write and to read, than bit-shuffle
@@ -17,8 +17,8 @@ Why these choices (the spec's 'Encoding' section says the same):
   geometric contact model and three fifths with the elastic one, and less time to compress and to decompress
   (benchmarks/codecs.py); decoding adds one uint8 addition per image;
 * Blosc blocks of 128 KiB instead of Blosc's automatic size (tens of KiB at level 1): Zstandard finds more
-  of the long zero runs in larger blocks, and fewer blocks cost less (GF225 images 6 to 8 % smaller, 20 to
-  25 % faster to write); the block size is in each chunk's header, so readers need nothing new;
+  of the long zero runs in larger blocks, and fewer blocks cost less (GF225 images 3 to 8 % smaller, 20 to
+  27 % faster to write); the block size is in each chunk's header, so readers need nothing new;
 * every chunk carries a checksum (HDF5 Fletcher-32, Zarr CRC32C) so flipped bytes are found on read;
 * Zarr shards group up to ``SHARD_FRAMES`` frames into one object: few files on object stores, while the
   chunk stays the unit of reading.

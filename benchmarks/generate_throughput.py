@@ -1,4 +1,4 @@
-"""Indenter generation end to end, one core: frames per second per sensor and contact method (physics,
+"""Indenter generation end to end, one core: frames per second per sensor and contact model (physics,
 tactile, compression, write), bytes per frame on disk, where the time goes, and what the paper-size
 corpus (205,826 frames) would take on a 2-core machine.
 
@@ -8,6 +8,9 @@ Frames per second per core are frames over the CPU seconds of the process (simul
 compression and write), so other jobs on the machine do not inflate them; wall-clock rates are recorded too.
 Each sensor and contact model first runs a short untimed episode: the compiled kernels are built (or loaded
 from numba's on-disk cache) once per process, which a generator worker pays once, not per frame.
+
+Contact models: geometric; elastic on a half-space (the default); elastic on a gel layer bonded to its backing
+(``--gel layer``), whose rows also show how much larger its forces are.
 
 Writes benchmarks/results/generate_throughput.json and docs/figures/generate_throughput.png.
 """
@@ -30,6 +33,7 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
@@ -53,17 +57,21 @@ STAGES = {  # profile entries (function name, file suffix) -> stage
 }
 
 
-def one(sensor: str, method: str, shape: str, frames: int, out: str, index: int) -> dict[str, float]:
+MODELS = (("geometric", "half_space"), ("elastic", "half_space"), ("elastic", "layer"))
+
+
+def one(sensor: str, method: str, shape: str, frames: int, out: str, index: int, gel: str = "half_space") \
+        -> dict[str, float]:
     """One episode; CPU seconds of this process (what one core spends, whatever else the machine runs) and
     wall seconds (which include waiting for the disk)."""
-    spec = IndenterEpisodeSpec(sensor, shape, index, frames=frames, contact_method=method)
+    spec = IndenterEpisodeSpec(sensor, shape, index, frames=frames, contact_method=method, gel=gel)  # type: ignore[arg-type]
     cpu0, wall0 = time.process_time(), time.perf_counter()
     episode = run_indenter_episode(spec)
     cpu1 = time.process_time()
     written = write_episode_file(Location.parse(out), "hdf5", episode)
     cpu2, wall2 = time.process_time(), time.perf_counter()
     return {"frames": frames, "simulate_cpu_s": cpu1 - cpu0, "write_cpu_s": cpu2 - cpu1, "wall_s": wall2 - wall0,
-            "bytes": written.row.bytes}
+            "bytes": written.row.bytes, "max_normal_force_n": episode.meta.safety.max_normal_force_n}
 
 
 def _stage_of(path: str, name: str) -> str | None:
@@ -99,21 +107,24 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for sensor in SENSORS:
-            for method in ("geometric", "elastic"):
-                out = os.path.join(tmp, f"{sensor}-{method}")
+            for method, gel in MODELS:
+                out = os.path.join(tmp, f"{sensor}-{method}-{gel}")
                 # untimed: the compiled kernels (numba) are built or loaded once per process, a one-time cost
                 # that a worker pays on its first frame, not per frame
-                one(sensor, method, shapes[0], 3, os.path.join(tmp, f"warm-up-{sensor}-{method}"), 10_000)
-                runs = [one(sensor, method, shape, args.frames, out, k) for k, shape in enumerate(shapes)]
+                one(sensor, method, shapes[0], 3, os.path.join(tmp, f"warm-up-{sensor}-{method}-{gel}"), 10_000, gel)
+                runs = [one(sensor, method, shape, args.frames, out, k, gel) for k, shape in enumerate(shapes)]
                 frames = sum(r["frames"] for r in runs)
                 seconds = sum(r["simulate_cpu_s"] + r["write_cpu_s"] for r in runs)
                 row = {
-                    "sensor": sensor, "method": method, "frames": frames,
+                    "sensor": sensor, "method": method, "gel": gel, "frames": frames,
                     "frames_per_s_per_core": round(frames / seconds, 1),
                     "frames_per_s_wall": round(frames / sum(r["wall_s"] for r in runs), 1),
                     "compress_write_share_of_cpu": round(sum(r["write_cpu_s"] for r in runs) / seconds, 3),
                     "bytes_per_frame": round(sum(r["bytes"] for r in runs) / frames),
                     "paper_corpus_hours_on_2_cores": round(PAPER_FRAMES / (2 * frames / seconds) / 3600, 2),
+                    # per episode, the largest normal force on either pad (N): median and max over the shapes
+                    "episode_max_normal_force_n_median": round(float(np.median([r["max_normal_force_n"] for r in runs])), 2),
+                    "episode_max_normal_force_n_max": round(max(r["max_normal_force_n"] for r in runs), 2),
                 }
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr)
@@ -135,9 +146,10 @@ def main() -> None:
 
 def chart(result: dict, path: os.PathLike[str]) -> None:  # type: ignore[type-arg]
     rows = result["rows"]
-    labels = [f"{r['sensor']}\n{r['method']}" for r in rows]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 4.5))
-    colours = ["tab:blue" if r["method"] == "geometric" else "tab:orange" for r in rows]
+    labels = [f"{r['sensor']}\n{r['method']}" + (" (layer)" if r.get("gel") == "layer" else "") for r in rows]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(15, 4.8))
+    colours = ["tab:blue" if r["method"] == "geometric" else "tab:green" if r.get("gel") == "layer" else "tab:orange"
+               for r in rows]
     ax1.bar(labels, [r["frames_per_s_per_core"] for r in rows], color=colours)
     ax1.axhline(result["targets"]["geometric_frames_per_s"], color="tab:blue", ls="--", lw=1, label="target, geometric")
     ax1.axhline(result["targets"]["elastic_frames_per_s"], color="tab:orange", ls="--", lw=1, label="target, elastic")

@@ -59,6 +59,7 @@ class IndenterEpisodeSpec:
     base_seed: int = 0
     frames: int = 60
     contact_method: Literal["geometric", "elastic"] = "geometric"
+    gel: Literal["half_space", "layer"] = "half_space"  # elastic contact only
     record_rate_hz: float = 60.0
     timestep_s: float = 0.001
 
@@ -106,7 +107,8 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
                                                               gripper_pos=start))  # type: ignore[arg-type]
     sim = GripperSim(model, profile, {p: indenter_geom_names(indenter, PAD_SIDE[p]) for p in PADS}, OBJECT_NAME,
                      PRIMITIVE_NAMES, SimConfig(record_rate_hz=spec.record_rate_hz,
-                                                contact_method=spec.contact_method, max_frames=spec.frames))
+                                                contact_method=spec.contact_method, gel=spec.gel,
+                                                max_frames=spec.frames))
     span = 2 * (BASE_HALF_THICKNESS_M + TIP_HEIGHT_M)
     sim.set_opening(span + 2 * margin)
     for _ in range(50):  # settle the fingers at the start opening; recording starts after

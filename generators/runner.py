@@ -14,7 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from multiprocessing import get_context
 from typing import Any
 
@@ -58,9 +58,12 @@ def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]
     row = writer.index[done[0].episode_id]
     with writer.store.open(writer.loc, row.path) as handle:
         stored = handle.meta.generator.settings
+    # a setting added since the dataset was made (e.g. ``gel``) had its default value then
+    defaults = {f.name: f.default for f in fields(IndenterEpisodeSpec) if f.default is not MISSING}
     for key, wanted in asdict(done[0]).items():
-        if stored.get(key) != wanted:
-            raise DatasetError(f"{writer.loc.url_of(row.path)}: made with {key}={stored.get(key)!r}, "
+        made_with = stored.get(key, defaults.get(key))
+        if made_with != wanted:
+            raise DatasetError(f"{writer.loc.url_of(row.path)}: made with {key}={made_with!r}, "
                                f"this run asks for {key}={wanted!r}; rerun with the same options or choose a new --out")
 
 

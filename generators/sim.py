@@ -22,6 +22,7 @@ from univtac_data.generators.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to
 from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,
+    GelModel,
     TactileConfig,
     gap_field,
     pad_pose,
@@ -46,6 +47,7 @@ class SimConfig:
     record_rate_hz: float | None = 60.0  # UniVTAC saves data at 60 Hz; None records nothing (physics only)
     control_period_steps: int = 2  # controller ticks every 2 physics steps (500 Hz at dt = 1 ms)
     contact_method: Literal["geometric", "elastic"] = "geometric"  # tactile contact model
+    gel: GelModel = "half_space"  # elastic: the gel as a half-space or as a bonded layer (ContactConfig.gel)
     # Cell sizes in mm, turned into whole pixels per sensor (``cell_steps``) so that every sensor gets the same
     # physical resolution: the GF225's pixels are 0.05 mm, the others' 0.085 mm.
     # Stick/slip shear solve: 0.66 mm is a quarter of the marker pitch (8 px on a GelSight Mini); the solve
@@ -119,7 +121,7 @@ class GripperSim:
         self._tactile = TactileConfig(
             shear_step=shear_step,
             contact=ContactConfig(method=self.config.contact_method, tol=self.config.contact_tol,
-                                  solver_step=solver_step),
+                                  solver_step=solver_step, gel=self.config.gel),
         )
         self._states: dict[str, ContactState | None] = {pad: None for pad in PADS}
         # per pad, while in contact: the object-frame point (m) that sat at the pad centre when the contact

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
 
+import h5py
 import mujoco
 import numpy as np
 import pytest
@@ -21,6 +23,8 @@ from univtac_data.generators.indenters import INDENTER_NAMES, INDENTERS, TIP_HEI
 from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, squeeze_open_loop
 from univtac_data.generators.runner import run_corpus
 from univtac_data.generators.sim import GripperSim
+from univtac_data.storage.backend import META_ATTR
+from univtac_data.storage.errors import DatasetError
 
 
 def cli(*args: str, **kwargs: object) -> subprocess.CompletedProcess[str]:
@@ -162,3 +166,33 @@ def test_generated_episodes_pass_every_validator_rule(tmp_path):
 def test_workers_keep_freed_memory_on_linux():
     assert keep_freed_memory() is True
     assert keep_freed_memory() is True  # once per process, then cached
+
+
+def test_gel_layer_option_is_recorded_checked_on_resume_and_elastic_only(tmp_path):
+    geometric = cli("generate", "indenters", "--out", str(tmp_path / "g"), "--gel", "layer")
+    assert geometric.returncode == 2 and "--gel layer applies to --contact elastic" in geometric.stderr
+    assert not (tmp_path / "g").exists()
+    args = ["generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "sphere", "--episodes-per-shape", "1",
+            "--frames-per-episode", "4", "--workers", "1", "--contact", "elastic"]
+    first = cli(*args, "--gel", "layer")
+    assert first.returncode == 0, first.stderr
+    episode = Dataset.open(tmp_path / "d").load_episode("gelsight_mini-sphere-0000")
+    assert episode.meta.generator.settings["gel"] == "layer"
+    other = cli(*args)  # the default half-space into a layer dataset: refused, nothing written
+    assert other.returncode == 2 and "gel='layer'" in other.stderr and "gel='half_space'" in other.stderr
+
+
+def test_resume_takes_a_setting_missing_from_older_episodes_as_its_default(tmp_path):
+    """Episodes written before a setting existed (``gel``, 0.2.0) were made with its default."""
+    spec = IndenterEpisodeSpec("gelsight_mini", "cone", 0, frames=3)
+    assert run_corpus(str(tmp_path / "d"), [spec], workers=1, progress=False).written == 1
+    with h5py.File(next((tmp_path / "d" / "episodes").glob("*.h5")), "r+") as f:
+        meta = json.loads(f.attrs[META_ATTR])
+        del meta["generator"]["settings"]["gel"]
+        f.attrs[META_ATTR] = json.dumps(meta)
+    summary = run_corpus(str(tmp_path / "d"), [spec, IndenterEpisodeSpec("gelsight_mini", "cone", 1, frames=3)],
+                         workers=1, progress=False)
+    assert summary.written == 1 and not summary.failed
+    with pytest.raises(DatasetError, match="gel='half_space'.*gel='layer'"):
+        run_corpus(str(tmp_path / "d"), [IndenterEpisodeSpec("gelsight_mini", "cone", 0, frames=3, gel="layer")],
+                   workers=1, progress=False)

@@ -3,6 +3,7 @@ readers' own descriptors (``loaders/files.py``) against the plain h5py path."""
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import shutil
@@ -88,6 +89,8 @@ def test_frame_batch_loader_threads_share_the_cache(root: Path, h5py_opens: list
     expected = [[torch.utils.data.default_collate([reference[i] for i in indices])
                  for indices in shuffled_batches(len(ds), 5, 1 + epoch)] for epoch in range(3)]
     reference.reader.close()
+    del reference
+    gc.collect()  # files of earlier tests that only the collector closes would otherwise close mid-count
     before = open_descriptors()
     h5py_opens.clear()
     opens_per_epoch = []

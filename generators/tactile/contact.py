@@ -2,7 +2,7 @@
 
 ``solve_contact(gap_mm, grid, material, config)`` turns a gap field on a grid into the deformed gel surface.
 One method per file: :mod:`.contact_geometric` (clipped, smoothed overlap; cheap) and
-:mod:`.contact_elastic` (linear-elastic half-space, Polonsky & Keer conjugate gradient).
+:mod:`.contact_elastic` (linear-elastic bonded layer or half-space, Polonsky & Keer conjugate gradient).
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ from univtac_data.schema.sensors import Material
 
 from .sensor_model import SensorGrid
 
-__all__ = ["ContactConfig", "ContactMethod", "ContactResult", "solve_contact"]
+__all__ = ["ContactConfig", "ContactMethod", "ContactResult", "GelModel", "solve_contact"]
 
 ContactMethod = Literal["geometric", "elastic"]
+GelModel = Literal["layer", "half_space"]
 
 GAP_FAR_MM = 1.0e3
 """Gap value meaning 'no object along this ray', mm (any value well above every indentation works)."""
@@ -35,6 +36,10 @@ class ContactConfig:
     # elastic: solve window = overlap bounding box grown by this fraction per side (at least 2 cells). The
     # pressure is zero off the overlap, so a margin only enlarges the transforms: 0.5 cost 35 % more time.
     window_margin: float = 0.0
+    # elastic: "half_space", whose closed forms (Hertz, Boussinesq) the solver meets exactly and against which
+    # the rigid pad's contact is calibrated, or "layer", the gel as a layer of the profile's thickness bonded
+    # to a rigid backing: stiffer, and its deformation stays within a few thicknesses of the contact
+    gel: GelModel = "half_space"
     smooth_sigma_mm: float = 0.25  # geometric: Gaussian skirt around the overlap, mm
     smooth_levels: int = 2  # geometric: blur levels (sigma, sigma/2, ...), contact region restored after each
 
@@ -58,11 +63,12 @@ class ContactResult:
 
 
 def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
-                  initial_pressure_mpa: np.ndarray | None = None) -> ContactResult:
+                  initial_pressure_mpa: np.ndarray | None = None, thickness_mm: float | None = None) -> ContactResult:
     """Solve the normal contact of a gap field (ny, nx) mm (negative = overlap) on ``grid``.
 
     ``initial_pressure_mpa`` (ny, nx), e.g. the previous frame's: a starting point for the elastic solve
-    (the solution does not depend on it, only the iterations do)."""
+    (the solution does not depend on it, only the iterations do). ``thickness_mm``: the gel layer's
+    thickness, used by the elastic method when ``config.gel`` is "layer" (which then requires it)."""
     if gap_mm.shape != grid.shape:
         raise ValueError(f"gap field shape must match the grid {grid.shape} (got {gap_mm.shape})")
     if config.method == "geometric":
@@ -72,5 +78,10 @@ def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, conf
     if config.method == "elastic":
         from .contact_elastic import solve_elastic
 
-        return solve_elastic(gap_mm, grid, material, config, initial_pressure_mpa)
+        if config.gel not in ("layer", "half_space"):
+            raise ValueError(f"ContactConfig.gel must be 'layer' or 'half_space' (got {config.gel!r})")
+        if config.gel == "layer" and thickness_mm is None:
+            raise ValueError("ContactConfig.gel='layer' needs the gel thickness (thickness_mm)")
+        return solve_elastic(gap_mm, grid, material, config, initial_pressure_mpa,
+                             thickness_mm if config.gel == "layer" else None)
     raise ValueError(f"contact method must be 'geometric' or 'elastic' (got {config.method!r})")

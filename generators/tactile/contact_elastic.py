@@ -1,4 +1,5 @@
-"""Elastic contact: a rigid object pressed into a linear-elastic half-space, non-negative pressure.
+"""Elastic contact: a rigid object pressed into a linear-elastic gel (a bonded layer or a half-space),
+non-negative pressure.
 
 Unknown: the pressure p (MPa) on the solver grid. The gel surface moves toward the camera by
 ``u = K * p`` (mm; K = Love's rectangular-cell influence coefficients, :mod:`.kernels`, convolved by
@@ -18,10 +19,13 @@ direct sum over the few cells the projection changed, so most iterations cost on
 displacement over the whole grid (the sink-in ring, which falls off like 1/r) is then one full-grid
 convolution, also in single precision. Outputs: D = u (>= overlap, equal to it in contact), p, force = sum(p) * cell area, mask p > 0.
 
-Finite gel thickness: none. The kernel is the half-space one; a gel layer of thickness h on a rigid backing is
-stiffer than the half-space when the contact radius approaches h (2 to 4 mm here, contact radii of 1 to
-2 mm at the grasp depth). We keep the half-space so that the solver is exact against its closed forms
-(Hertz, flat punch) and treat E as the effective modulus of the layer; the docs quantify the gap.
+Finite gel thickness: with ``thickness_mm`` the normal influence coefficients are those of a layer of that
+thickness bonded to a rigid backing (:mod:`.kernels`): stiffer than the half-space once the contact radius
+nears the thickness (2 to 4 mm here, contact radii of 1 to 2 mm at the grasp depth), and its sink-in dies out
+within a few thicknesses instead of falling off like 1/r. Without it (``ContactConfig.gel = "half_space"``)
+the solver is the half-space one, exact against its closed forms (Hertz, flat punch), which the tests keep.
+The layer's pile-up beyond about one thickness (the surface rising toward the object, a few per cent of the
+indentation) is clipped: D is an indentation, >= 0.
 """
 
 from __future__ import annotations
@@ -62,11 +66,12 @@ SPARSE_UPDATE_CELLS = 16
 
 def pk_solve(
     gap_mm: np.ndarray, dx: float, dy: float, material: Material, tol: float, max_iter: int,
-    p_init: np.ndarray | None = None,
+    p_init: np.ndarray | None = None, thickness_mm: float | None = None,
 ) -> tuple[np.ndarray, int, bool]:
     """Polonsky-Keer CG on a (sub)grid: pressure (ny, nx) MPa, iterations, converged. ``p_init`` (ny, nx)
-    MPa: a starting pressure (used where it is positive and the gap overlaps)."""
-    ks = kernel_set(gap_mm.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
+    MPa: a starting pressure (used where it is positive and the gap overlaps). ``thickness_mm``: gel layer
+    thickness (None: half-space)."""
+    ks = kernel_set(gap_mm.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
     pad, spec = ks.pad_shape, ks.zz_single
     gap_mm = gap_mm.astype(np.float32)
     overlap = np.maximum(-gap_mm, 0.0)
@@ -119,9 +124,10 @@ def pk_solve(
 
 
 def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
-                  initial_pressure_mpa: np.ndarray | None = None) -> ContactResult:
-    """Elastic half-space contact of the gap field (ny, nx) mm on ``grid``; see the module docstring.
-    ``initial_pressure_mpa`` (ny, nx) MPa on ``grid`` starts the solve (e.g. the previous frame's)."""
+                  initial_pressure_mpa: np.ndarray | None = None, thickness_mm: float | None = None) -> ContactResult:
+    """Elastic contact of the gap field (ny, nx) mm on ``grid``: a bonded gel layer ``thickness_mm`` thick, or
+    the half-space (None); see the module docstring. ``initial_pressure_mpa`` (ny, nx) MPa on ``grid`` starts
+    the solve (e.g. the previous frame's)."""
     window = overlap_window(gap_mm, config.window_margin)
     if window is None:
         zeros = np.zeros(grid.shape)
@@ -130,10 +136,11 @@ def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, conf
     start = None
     if initial_pressure_mpa is not None and initial_pressure_mpa.shape == gap_mm.shape:
         start = initial_pressure_mpa[window]
-    p_win, iterations, converged = pk_solve(gap_mm[window], dx, dy, material, config.tol, config.max_iter, start)
+    p_win, iterations, converged = pk_solve(gap_mm[window], dx, dy, material, config.tol, config.max_iter, start,
+                                            thickness_mm)
     pressure = np.zeros(grid.shape)
     pressure[window] = p_win
-    full = kernel_set(grid.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
+    full = kernel_set(grid.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
     # single precision, as in the window: the depth is stored in whole micrometres, float32 resolves 1e-6 mm
     depth = np.maximum(convolve(pressure.astype(np.float32), full.zz_single, full.pad_shape), 0.0).astype(np.float64)
     # in contact the surface follows the object exactly (the CG leaves a residual of order tol)

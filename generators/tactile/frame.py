@@ -186,7 +186,8 @@ def simulate_frame(
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
-    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous)
+    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous,
+                           profile.gel_thickness_mm)
     if contact_cfg.method == "geometric":
         # on the image grid already: the depth holds the overlap and the pressure is zero off the mask
         depth, contact, pressure = result.depth_mm, result.contact_mask, result.pressure_mpa

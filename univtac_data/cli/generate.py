@@ -30,6 +30,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     ind.add_argument("--rate", type=float, default=60.0, help="recording rate, Hz (default 60)")
     ind.add_argument("--contact", choices=("geometric", "elastic"), default="geometric",
                      help="tactile contact model (default geometric)")
+    ind.add_argument("--gel", choices=("half_space", "layer"), default="half_space",
+                     help="elastic contact: the gel as a half-space, or as a layer of the sensor's thickness "
+                          "bonded to its backing (stiffer, deformation local to the contact; the rigid pad is "
+                          "calibrated against the half-space) (default half_space)")
     ind.add_argument("--seed", type=int, default=0, help="base seed; each episode derives its own (default 0)")
     ind.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
     ind.add_argument("--workers", type=int, default=None, help="parallel workers (default: the CPU count)")
@@ -62,9 +66,12 @@ def run(args: argparse.Namespace) -> int:
             raise DatasetError(f"{name} must be at least 1 (got {value})")
     if args.rate <= 0:
         raise DatasetError(f"--rate must be positive (got {args.rate})")
+    if args.gel != "half_space" and args.contact != "elastic":
+        raise DatasetError(f"--gel {args.gel} applies to --contact elastic only (got --contact {args.contact})")
     sensors = list(SENSORS) if args.sensor == "all" else [args.sensor]
     specs = corpus_specs(sensors, _shape_list(args.shapes), args.episodes_per_shape, base_seed=args.seed,
-                         frames=args.frames_per_episode, contact_method=args.contact, record_rate_hz=args.rate)
+                         frames=args.frames_per_episode, contact_method=args.contact, gel=args.gel,
+                         record_rate_hz=args.rate)
     workers = args.workers if args.workers is not None else default_workers()
     summary = run_corpus(args.out, specs, storage=args.format, workers=workers, executor=args.executor,
                          ray_address=args.ray_address, progress=sys.stderr.isatty())

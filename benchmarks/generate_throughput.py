@@ -64,7 +64,8 @@ def one(sensor: str, method: str, shape: str, frames: int, out: str, index: int,
         -> dict[str, float]:
     """One episode; CPU seconds of this process (what one core spends, whatever else the machine runs) and
     wall seconds (which include waiting for the disk)."""
-    spec = IndenterEpisodeSpec(sensor, shape, index, frames=frames, contact_method=method, gel=gel)  # type: ignore[arg-type]
+    spec = IndenterEpisodeSpec(sensor, shape, index, frames=frames, contact_method=method,  # type: ignore[arg-type]
+                               gel=gel)  # type: ignore[arg-type]
     cpu0, wall0 = time.process_time(), time.perf_counter()
     episode = run_indenter_episode(spec)
     cpu1 = time.process_time()
@@ -111,7 +112,8 @@ def main() -> None:
                 out = os.path.join(tmp, f"{sensor}-{method}-{gel}")
                 # untimed: the compiled kernels (numba) are built or loaded once per process, a one-time cost
                 # that a worker pays on its first frame, not per frame
-                one(sensor, method, shapes[0], 3, os.path.join(tmp, f"warm-up-{sensor}-{method}-{gel}"), 10_000, gel)
+                warm_up = os.path.join(tmp, f"warm-up-{sensor}-{method}-{gel}")
+                one(sensor, method, shapes[0], 3, warm_up, 10_000, gel)
                 runs = [one(sensor, method, shape, args.frames, out, k, gel) for k, shape in enumerate(shapes)]
                 frames = sum(r["frames"] for r in runs)
                 seconds = sum(r["simulate_cpu_s"] + r["write_cpu_s"] for r in runs)
@@ -123,7 +125,8 @@ def main() -> None:
                     "bytes_per_frame": round(sum(r["bytes"] for r in runs) / frames),
                     "paper_corpus_hours_on_2_cores": round(PAPER_FRAMES / (2 * frames / seconds) / 3600, 2),
                     # per episode, the largest normal force on either pad (N): median and max over the shapes
-                    "episode_max_normal_force_n_median": round(float(np.median([r["max_normal_force_n"] for r in runs])), 2),
+                    "episode_max_normal_force_n_median": round(float(np.median([r["max_normal_force_n"]
+                                                                                for r in runs])), 2),
                     "episode_max_normal_force_n_max": round(max(r["max_normal_force_n"] for r in runs), 2),
                 }
                 rows.append(row)

@@ -8,8 +8,14 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import j0
 
-from univtac_data.generators.tactile import ContactConfig, TactileConfig, sensor_grid, simulate_frame, solve_contact
-from univtac_data.generators.tactile import sphere_gap
+from univtac_data.generators.tactile import (
+    ContactConfig,
+    TactileConfig,
+    sensor_grid,
+    simulate_frame,
+    solve_contact,
+    sphere_gap,
+)
 from univtac_data.generators.tactile.frame import CONTACT_TOL_MM
 from univtac_data.generators.tactile.kernels import (
     LAYER_RHO_MAX,

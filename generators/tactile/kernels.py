@@ -123,7 +123,8 @@ def _corner_sum(f, x: np.ndarray, y: np.ndarray, a: float, b: float) -> np.ndarr
 class KernelSet:
     """Spectra (rfft2 over the padded (2 ny, 2 nx) grid) of the influence coefficients for one grid.
 
-    ``zz``: pressure -> u_z (mm per MPa; of the layer when ``thickness_mm`` is given); ``rx``/``ry``: pressure -> u_x / u_y (radial term);
+    ``zz``: pressure -> u_z (mm per MPa; of the layer when ``thickness_mm`` is given);
+    ``rx``/``ry``: pressure -> u_x / u_y (radial term);
     ``xx``, ``xy``, ``yy``: tangential traction -> in-plane displacement (``xy`` serves both couplings).
     Spatial kernels are built lazily, the normal one always.
     """

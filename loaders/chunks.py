@@ -272,14 +272,20 @@ class FrameSource:
         self.read_into(frame, out)
         return out
 
-    def read_into(self, frame: int, out: np.ndarray, level: int = 0) -> None:
+    def read_into(self, frame: int, out: np.ndarray, level: int = 0, base_values: np.ndarray | None = None) -> None:
         """Frame ``frame`` into ``out``: C-contiguous, the stored frame shape, the stored dtype or one of its
         size (uint16 micrometres into an int16 buffer keeps the bits). ``level``: this array's depth in a
-        chain of residuals (0 unless called for a base)."""
+        chain of residuals (0 unless called for a base). ``base_values``: for a residual, its base's frame
+        ``frame`` in logical values, when the caller has decoded it already (``self.base.read_into`` of the
+        same frame): added instead of decoding the base again."""
         if self.chunks is None or not self.chunks.read_frame_into(frame, out):
             out[...] = self.read_logical(frame).view(out.dtype)   # residual bases added already
         elif self.base is not None:
-            self._add_base(frame, out.view(self.dtype), level)
+            if base_values is None:
+                self._add_base(frame, out.view(self.dtype), level)
+            else:
+                stored = out.view(self.dtype)
+                np.add(stored, base_values, out=stored)
 
     def _add_base(self, frame: int, stored: np.ndarray, level: int) -> None:
         """Add the base's frame ``frame`` to the decoded residual ``stored``, in place: unsigned, so modulo

@@ -227,16 +227,36 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
         width, height = profile.image_width_px, profile.image_height_px
         convert = convert_compact if self.config.compact else convert_target
         compact, channels_last = self.config.compact, self.config.channels_last
-        batch: Sample = {}
-        for key in self.config.fields:
-            path = FRAME_FIELDS[key]
-            if key in DECODED_FIELDS:
-                sources = [(reader.frame_source(ref, f"tactile/{pad}/{path}"), frame) for ref, frame, pad in rows]
-                name, batch[name] = decode_batch(key, sources, compact, buffers, channels_last)
+        decoded: dict[str, tuple[str, torch.Tensor]] = {}   # field key -> (batch key, tensor)
+        # I_marked is stored as a residual of I_pure: decode I_pure first and add its frames to the marked
+        # residuals rather than decode each I_pure frame twice (a fifth of a compact batch)
+        fields = list(self.config.fields)
+        # sources in field order: a damaged file fails on the same array as a single sample's read
+        field_sources = {key: [(reader.frame_source(ref, f"tactile/{pad}/{FRAME_FIELDS[key]}"), frame)
+                               for ref, frame, pad in rows] for key in fields if key in DECODED_FIELDS}
+        # only on the chunk fast path: other reads go through the backend, which reuses the base frame itself
+        share_pure = "marked_rgb" in fields and "pure_rgb" in fields and all(
+            source.chunks is not None for source, _ in field_sources["marked_rgb"])
+        pure_frames: np.ndarray | None = None
+        pure_sources: list[FrameSource] = []
+        for key in sorted(fields, key=lambda k: k != "pure_rgb") if share_pure else fields:
+            if key in field_sources:
+                sources = field_sources[key]
+                if share_pure and key == "pure_rgb":
+                    pure_sources = [source for source, _ in sources]
+                    images, pure_frames = decode_images(sources, compact, channels_last, buffers, keep_frames=True)
+                    decoded[key] = (key, images)
+                elif share_pure and key == "marked_rgb" and pure_frames is not None:
+                    bases = [pure_frames[k] if source.base is pure_sources[k] else None
+                             for k, (source, _) in enumerate(sources)]
+                    decoded[key] = (key, decode_images(sources, compact, channels_last, buffers, bases=bases)[0])
+                else:
+                    decoded[key] = decode_batch(key, sources, compact, buffers, channels_last)
             else:
                 samples = [convert(key, value, width, height, channels_last) for value in
                            (read_fields(reader, ref, frame, pad, (key,))[key] for ref, frame, pad in rows)]
-                batch[key] = torch.stack([tensor for _, tensor in samples])
+                decoded[key] = (key, torch.stack([tensor for _, tensor in samples]))
+        batch: Sample = dict(decoded[key] for key in fields)
         batch.update(sensor=[ref.sensor for ref, _, _ in rows], pad=[pad for _, _, pad in rows],
                      episode_id=[ref.episode_id for ref, _, _ in rows], name=[ref.name for ref, _, _ in rows],
                      frame=torch.tensor([frame for _, frame, _ in rows]),
@@ -283,44 +303,59 @@ def decode_batch(key: str, sources: Sequence[tuple[FrameSource, int]], compact: 
     """``(sample key, (B, C, H, W) tensor)`` for an image or depth key, each ``(source, frame)`` decoded into
     its slot; values exactly those of ``convert_target`` / ``convert_compact`` on the frame."""
     if key in IMAGE_KEYS:
-        return key, decode_images(sources, compact, channels_last, buffers)
+        return key, decode_images(sources, compact, channels_last, buffers)[0]
     if compact:
         return "depth_um", decode_depth_um(sources, buffers)
     return key, decode_depth_mm(sources, buffers)
 
 
 def decode_images(sources: Sequence[tuple[FrameSource, int]], compact: bool, channels_last: bool,
-                  buffers: BatchBuffers | None = None) -> torch.Tensor:
-    """(B, 3, H, W) uint8 (``compact``) or float32 / 255 images, frame k of the batch from ``sources[k]``:
-    contiguous, or with ``channels_last`` a view of (B, H, W, 3) memory.
+                  buffers: BatchBuffers | None = None, *, keep_frames: bool = False,
+                  bases: Sequence[np.ndarray | None] | None = None) -> tuple[torch.Tensor, np.ndarray | None]:
+    """``(images, frames)``: (B, 3, H, W) uint8 (``compact``) or float32 / 255 images, frame k of the batch
+    from ``sources[k]``, contiguous, or with ``channels_last`` a view of (B, H, W, 3) memory; and with
+    ``keep_frames`` the (B, H, W, 3) uint8 frames as stored (the batch's own memory when compact and
+    channels-last), else ``None``. ``bases[k]``: the already decoded base frame of a residual source
+    (``FrameSource.read_into``), or ``None`` to decode it.
 
     Copies run in NumPy, in this thread: torch's may spin OpenMP threads on a busy machine.
     """
     height, width, _ = sources[0][0].frame_shape
     dtype = torch.uint8 if compact else torch.float32
+    frames = np.empty((len(sources), height, width, 3), np.uint8) if keep_frames else None
+
+    def stored_frame(k: int, into: np.ndarray) -> np.ndarray:
+        source, frame = sources[k]
+        base = None if bases is None else bases[k]
+        if base is None:
+            source.read_into(frame, into)
+        else:
+            source.read_into(frame, into, base_values=base)
+        return into
+
     if channels_last:
         out = batch_tensor((len(sources), height, width, 3), dtype, buffers)
         hwc = out.numpy()
         if compact:   # each slot is a stored frame's exact layout: decode straight into the batch
-            for k, (source, frame) in enumerate(sources):
-                source.read_into(frame, hwc[k])
-        else:
-            scratch = np.empty((height, width, 3), np.uint8)   # reused for every frame
-            for k, (source, frame) in enumerate(sources):
-                source.read_into(frame, scratch)
-                np.multiply(scratch, IMAGE_SCALE, out=hwc[k], dtype=np.float32)
-        return out.permute(0, 3, 1, 2)
+            for k in range(len(sources)):
+                stored_frame(k, hwc[k])
+            return out.permute(0, 3, 1, 2), (hwc if keep_frames else None)
+        scratch = np.empty((height, width, 3), np.uint8)   # reused for every frame
+        for k in range(len(sources)):
+            image = stored_frame(k, frames[k] if frames is not None else scratch)
+            np.multiply(image, IMAGE_SCALE, out=hwc[k], dtype=np.float32)
+        return out.permute(0, 3, 1, 2), frames
     out = batch_tensor((len(sources), 3, height, width), dtype, buffers)
     chw = out.numpy()
     scratch = np.empty((height, width, 3), np.uint8)   # (H, W, 3) as stored; reused for every frame
-    for k, (source, frame) in enumerate(sources):
-        source.read_into(frame, scratch)
+    for k in range(len(sources)):
+        image = stored_frame(k, frames[k] if frames is not None else scratch)
         # strided reads, contiguous writes: writing through a transposed view is 1.6x slower for float32
         if compact:
-            np.copyto(chw[k], scratch.transpose(2, 0, 1))
+            np.copyto(chw[k], image.transpose(2, 0, 1))
         else:
-            np.multiply(scratch.transpose(2, 0, 1), IMAGE_SCALE, out=chw[k], dtype=np.float32)
-    return out
+            np.multiply(image.transpose(2, 0, 1), IMAGE_SCALE, out=chw[k], dtype=np.float32)
+    return out, frames
 
 
 def decode_depth_um(sources: Sequence[tuple[FrameSource, int]], buffers: BatchBuffers | None = None) \

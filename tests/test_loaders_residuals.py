@@ -476,3 +476,33 @@ def test_a_checksum_collision_is_never_shared(monkeypatch: pytest.MonkeyPatch) -
     a, b = cache.get("a"), cache.get("b")
     assert a is not None and b is not None and np.array_equal(b.whole["ref"], image(1))
     assert set(b.pooled) == set() and cache.nbytes == a.nbytes + b.nbytes + image(0).nbytes
+
+
+@pytest.mark.parametrize("compact, channels_last", [(True, True), (True, False), (False, True), (False, False)])
+def test_a_batch_decodes_each_pure_frame_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compact: bool,
+                                              channels_last: bool) -> None:
+    """I_marked is a residual of I_pure: a batch with both adds the I_pure frames it decoded to the marked
+    residuals instead of decoding them again, and gets the same values."""
+    root = tmp_path / "d"
+    written = write_dataset(root, "hdf5")
+    ds = TactileFrameDataset(root, compact=compact, channels_last=channels_last,
+                             fields=("marked_rgb", "pure_rgb", "depth_mm", "markers"))
+    indices = shuffled_batches(len(ds), 6, seed=3)[0]
+    ds.read_batch(indices)   # layouts recorded: the second batch decodes every chunk itself
+    decoded: list[int] = []
+    original = FrameChunks.read_frame_into
+
+    def counting(self: FrameChunks, frame: int, out: np.ndarray) -> bool:
+        decoded.append(frame)
+        return original(self, frame, out)
+
+    monkeypatch.setattr(FrameChunks, "read_frame_into", counting)
+    batch = ds.read_batch(indices)
+    assert len(decoded) == 3 * len(indices)   # I_marked, I_pure and depth once per sample
+    assert_same(batch, expected_batch(ds, indices, written), channels_last=channels_last)
+    decoded.clear()
+    alone = TactileFrameDataset(root, compact=compact, channels_last=channels_last, fields=("marked_rgb",))
+    alone.read_batch(indices)
+    decoded.clear()
+    assert_same(alone.read_batch(indices), expected_batch(alone, indices, written), channels_last=channels_last)
+    assert len(decoded) == 2 * len(indices)   # without I_pure in the batch, I_marked decodes its base itself

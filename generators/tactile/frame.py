@@ -186,6 +186,7 @@ def simulate_frame(
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
+    layer_mm = profile.gel_thickness_mm if contact_cfg.method == "elastic" and contact_cfg.gel == "layer" else None
     result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous,
                            profile.gel_thickness_mm)
     if contact_cfg.method == "geometric":
@@ -208,7 +209,7 @@ def simulate_frame(
     p_sh = _block_mean_of_load(result.pressure_mpa, factor)
     shear = solve_shear(
         p_sh, p_sh > 0.0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm, grid_sh.y_mm, material,
-        tangential_mm, twist_rad, state,
+        tangential_mm, twist_rad, state, thickness_mm=layer_mm,
     )
 
     ref_mm = marker_reference_mm(profile)

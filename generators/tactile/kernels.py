@@ -1,5 +1,5 @@
-"""Influence coefficients of a linear-elastic half-space (or, for the normal response, of a layer bonded to
-a rigid backing) for uniform tractions on rectangular cells, and their zero-padded FFT convolution.
+"""Influence coefficients of a linear-elastic half-space, or of a layer bonded to a rigid backing, for
+uniform tractions on rectangular cells, and their zero-padded FFT convolution.
 
 A cell of size ``dx x dy`` (mm) carries a uniform traction (MPa). The surface displacement (mm) it causes at
 offset (X, Y) = (x - x_cell, y - y_cell) is the integral of the point-load solution over the cell:
@@ -12,24 +12,35 @@ offset (X, Y) = (x - x_cell, y - y_cell) is the integral of the point-load solut
   ``u_x = 1 / (2 pi G) * S[(1 - nu) F + nu Hxx]``, ``Hxx(X, Y) = Y asinh(X/|Y|)`` (primitive of X^2/r^3),
   ``u_y = nu / (2 pi G) * S[-r]`` (primitive of XY/r^3), and symmetrically for a traction along y.
 
-Finite gel layer (normal response only). A layer of thickness h bonded to a rigid backing, loaded by a
-normal pressure on its free surface, has the surface compliance (2-D Fourier transform, wavenumber k)
+Finite gel layer. A layer of thickness h bonded to a rigid backing, loaded on its free surface, has the
+surface compliances (2-D Fourier transform, wavenumber k, s = k h, kappa = 3 - 4 nu) of the half-space times
 
-    u_z~(k) / p~(k) = 2 / (E* k) * R(k h),
-    R(s) = (kappa sinh 2s - 2s) / (kappa cosh 2s + 2 s^2 + (1 + kappa^2) / 2),   kappa = 3 - 4 nu,
+    normal:                      R_N(s) = (kappa sinh 2s - 2s) / Den(s),
+    tangential along k:          R_L(s) = (kappa sinh 2s + 2s) / Den(s),
+    tangential across k:         R_T(s) = tanh s,
+    Den(s) = kappa cosh 2s + 2 s^2 + (1 + kappa^2) / 2,
 
-from Navier's equations in plane strain (the surface problem depends on |k| only) with a traction-free,
-pressure-loaded top and zero displacement at the base; the tests rederive it. R -> 1 for k h >> 1 (the
-half-space, Boussinesq's 2 / (E* k)); for k h << 1 it gives the oedometric thin layer h (1 + nu)(1 - 2 nu) /
-(E (1 - nu)), and for nu = 1/2 the squeeze-film law k^2 h^3 / (3 G). In space the layer's influence is the
-half-space's plus a smooth correction,
+with the half-space's 2 / (E* k) (normal), (1 - nu) / (G k) (along) and 1 / (G k) (across), and the
+pressure -> in-plane coupling C(s) / (G k), C(s) = (s^2 - kappa (1 - 2 nu) / 2 (cosh 2s - 1)) / Den(s), in
+place of the half-space's -(1 - 2 nu) / (2 G k) (toward the load). All four come from Navier's equations in
+plane strain with a traction-loaded top and zero displacement at the base (the surface problem depends on
+|k| only, the across-k part is anti-plane shear); the tests rederive them. For s >> 1 they are the
+half-space's; for s << 1 the thin layer's (oedometric compression h (1 + nu)(1 - 2 nu) / (E (1 - nu)), simple
+shear h / G; for nu = 1/2 the squeeze-film law k^2 h^3 / (3 G)). The coupling changes sign: a pressed,
+nearly incompressible layer pushes its surface outward, where the half-space draws it in.
 
-    c(r) = 1 / (pi E* h) * D(r / h),   D(rho) = integral_0^inf (R(s) - 1) J0(s rho) ds,
+In space each coefficient is the cell-integrated half-space one plus a smooth correction, the Hankel
+transform of the difference (for a point load of unit size; rho = r / h, x^ = x / r):
 
-which cancels the half-space's 1/r tail (D -> -1/rho): the layer's response dies off within a few
-thicknesses instead of like 1/r, and it is negative (a pile-up) from about one thickness out. The correction
-varies on the scale of h (2 to 4 mm), so it is sampled at cell centres (times the cell area) and added to the
-cell-integrated half-space coefficients. The tangential (Cerruti) and radial coefficients stay half-space.
+    normal:        1 / (pi E* h) T[R_N - 1, J0](rho)
+    tangential:    1 / (2 pi G h) (delta_ij (T[a, J0] + T[b, J0] / 2) - (x^_i x^_j - delta_ij / 2) T[b, J2])
+                   with a = R_T - 1, b = (1 - nu)(R_L - 1) - (R_T - 1)
+    coupling:      1 / (2 pi G h) x^_i T[C + (1 - 2 nu) / 2, J1](rho)
+    T[g, Jn](rho) = integral_0^inf g(s) Jn(s rho) ds
+
+which cancels the half-space's 1/r tail (T -> g(0) / rho): the layer's response dies off within a few
+thicknesses instead of like 1/r; its normal one is negative (a pile-up) from about one thickness out. The
+corrections vary on the scale of h (2 to 4 mm), so they are sampled at cell centres (times the cell area).
 
 ``S[f]`` is the four-corner sum ``f(X+a, Y+b) - f(X+a, Y-b) - f(X-a, Y+b) + f(X-a, Y-b)`` with ``a = dx/2``,
 ``b = dy/2``. The tangential -> normal coupling (proportional to 1 - 2 nu, small for silicone at nu ~ 0.48) is
@@ -46,47 +57,94 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
-from scipy.special import j0
+from scipy.special import j0, j1
 
-__all__ = ["KernelSet", "convolve", "kernel_set", "layer_compliance_ratio", "layer_correction_profile"]
+__all__ = ["KernelSet", "convolve", "kernel_set", "layer_compliance_ratio", "layer_correction_profile",
+           "layer_profile", "layer_ratios"]
 
-# D(rho) is tabulated on [0, LAYER_RHO_MAX] and taken as -1/rho beyond, where the two differ by < 1e-6
-# (relative 1e-5); the integrand (R - 1) has decayed below 1e-25 at s = LAYER_S_MAX.
+# T[g, Jn](rho) is tabulated on [0, LAYER_RHO_MAX] and taken as g(0) / rho beyond, where the two differ by
+# < 2e-6 (relative 1e-4 or less); the integrands have decayed below 1e-25 at s = LAYER_S_MAX.
 LAYER_RHO_MAX = 16.0
 LAYER_S_MAX = 30.0
 _LAYER_RHO_STEP = 0.01
 _LAYER_S_STEP = 0.005
 
 
-def layer_compliance_ratio(s: np.ndarray, nu: float) -> np.ndarray:
-    """R(s), s = k h >= 0: the bonded layer's normal surface compliance over the half-space's (see the module
-    docstring). Written with exp(-2 s) so that large s does not overflow."""
+def layer_ratios(s: np.ndarray, nu: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(R_N, R_L, R_T, C) at s = k h >= 0, nu: the bonded layer's normal, along-k and across-k tangential
+    compliances over the half-space's, and its pressure -> in-plane coupling in units of 1 / (G k) (see the
+    module docstring). Written with exp(-2 s) so that large s does not overflow."""
     s = np.asarray(s, dtype=np.float64)
     kappa = 3.0 - 4.0 * nu
     e2 = np.exp(-2.0 * s)
-    sech = 2.0 * e2 / (1.0 + e2 * e2)
-    tanh = (1.0 - e2 * e2) / (1.0 + e2 * e2)
-    return (kappa * tanh - 2.0 * s * sech) / (kappa + (2.0 * s * s + 0.5 * (1.0 + kappa * kappa)) * sech)
+    sech = 2.0 * e2 / (1.0 + e2 * e2)   # 1 / cosh 2s
+    tanh = (1.0 - e2 * e2) / (1.0 + e2 * e2)   # tanh 2s
+    den = kappa + (2.0 * s * s + 0.5 * (1.0 + kappa * kappa)) * sech   # Den(s) / cosh 2s
+    normal = (kappa * tanh - 2.0 * s * sech) / den
+    along = (kappa * tanh + 2.0 * s * sech) / den
+    coupling = (s * s * sech - 0.5 * kappa * (1.0 - 2.0 * nu) * (1.0 - sech)) / den
+    return normal, along, np.tanh(s), coupling
+
+
+def layer_compliance_ratio(s: np.ndarray, nu: float) -> np.ndarray:
+    """R_N(s), s = k h >= 0: the bonded layer's normal surface compliance over the half-space's."""
+    return layer_ratios(s, nu)[0]
+
+
+#: The differences from the half-space that the spatial corrections transform, by name: (order of the Bessel
+#: function, g(s, nu)).
+_LAYER_TERMS = {
+    "normal": (0, lambda s, nu: layer_ratios(s, nu)[0] - 1.0),
+    "tangential_a": (0, lambda s, nu: layer_ratios(s, nu)[2] - 1.0),
+    "tangential_b0": (0, lambda s, nu: (1.0 - nu) * (layer_ratios(s, nu)[1] - 1.0) - (layer_ratios(s, nu)[2] - 1.0)),
+    "tangential_b2": (2, lambda s, nu: (1.0 - nu) * (layer_ratios(s, nu)[1] - 1.0) - (layer_ratios(s, nu)[2] - 1.0)),
+    "coupling": (1, lambda s, nu: layer_ratios(s, nu)[3] + 0.5 * (1.0 - 2.0 * nu)),
+}
 
 
 @lru_cache(maxsize=8)
-def _layer_table(nu: float) -> np.ndarray:
-    s = np.arange(0.0, LAYER_S_MAX + _LAYER_S_STEP / 2, _LAYER_S_STEP)
-    weights = np.full(s.size, _LAYER_S_STEP)
-    weights[[0, -1]] = _LAYER_S_STEP / 2  # trapezoid: within 2e-7 of adaptive quadrature on this integrand
-    weighted = (layer_compliance_ratio(s, nu) - 1.0) * weights
+def _layer_tables(nu: float) -> dict[str, tuple[np.ndarray, float]]:
+    """T[g, Jn] of every term of ``_LAYER_TERMS`` on the rho grid, and g(0): one pass over the Bessel
+    functions for all of them (J2 by the recurrence 2 J1(x) / x - J0(x); scipy's any-order jv took seconds)."""
+    step = _LAYER_S_STEP
+    s = np.arange(0.0, LAYER_S_MAX + step / 2, step)
+    weights = np.full(s.size, step)
+    weights[[0, -1]] = step / 2
+    values = {term: g(s, nu) for term, (_, g) in _LAYER_TERMS.items()}
+    weighted = np.stack([values[term] * weights for term in _LAYER_TERMS])   # (terms, s)
+    orders = [order for order, _ in _LAYER_TERMS.values()]
     rho = np.arange(0.0, LAYER_RHO_MAX + _LAYER_RHO_STEP / 2, _LAYER_RHO_STEP)
-    return np.array([float(np.dot(weighted, j0(s * r))) for r in rho])
+    tables = np.empty((len(orders), rho.size))
+    for i, r in enumerate(rho):
+        x = s * r
+        bessel0, bessel1 = j0(x), j1(x)
+        bessel2 = np.where(x > 0.0, 2.0 * bessel1 / np.where(x > 0.0, x, 1.0) - bessel0, 0.0)
+        by_order = (bessel0, bessel1, bessel2)
+        tables[:, i] = [float(np.dot(weighted[k], by_order[order])) for k, order in enumerate(orders)]
+    out = {}
+    for k, (term, order) in enumerate(zip(_LAYER_TERMS, orders, strict=True)):
+        # Euler-Maclaurin end correction at s = 0 (the integrand is flat at s = LAYER_S_MAX): the
+        # trapezoid's error, step^2 / 12 times the integrand's slope there, drops from 2e-6 to below 1e-8
+        v = values[term]
+        slope = (-3.0 * v[0] + 4.0 * v[1] - v[2]) / (2.0 * step) if order == 0 else \
+            (0.5 * v[0] * rho if order == 1 else 0.0)
+        out[term] = (tables[k] + step * step / 12.0 * slope, float(v[0]))
+    return out
+
+
+def layer_profile(term: str, rho: np.ndarray, nu: float) -> np.ndarray:
+    """T[g, Jn](rho) of the module docstring for ``term`` ("normal", "tangential_a", "tangential_b0",
+    "tangential_b2", "coupling") at rho = r / h >= 0 (dimensionless)."""
+    rho = np.asarray(rho, dtype=np.float64)
+    table, g0 = _layer_tables(float(nu))[term]
+    inside = np.interp(rho, np.arange(table.size) * _LAYER_RHO_STEP, table)
+    return np.where(rho <= LAYER_RHO_MAX, inside, g0 / np.maximum(rho, LAYER_RHO_MAX))
 
 
 def layer_correction_profile(rho: np.ndarray, nu: float) -> np.ndarray:
-    """D(rho) of the module docstring at rho = r / h >= 0 (dimensionless; the correction to the influence of a
-    point load P is P / (pi E* h) D)."""
-    rho = np.asarray(rho, dtype=np.float64)
-    table = _layer_table(float(nu))
-    inside = np.interp(rho, np.arange(table.size) * _LAYER_RHO_STEP, table)
-    with np.errstate(divide="ignore"):
-        return np.where(rho <= LAYER_RHO_MAX, inside, -1.0 / np.maximum(rho, LAYER_RHO_MAX))
+    """T[R_N - 1, J0](rho): the normal correction (the correction to the influence of a point load P is
+    P / (pi E* h) times it)."""
+    return layer_profile("normal", rho, nu)
 
 
 def _asinh_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -146,7 +204,7 @@ class KernelSet:
         zz_spatial = _corner_sum(_f_inv_r, self._x, self._y, self._a, self._b) / (np.pi * self.e_star)
         if thickness_mm is not None:
             rho = np.hypot(self._x, self._y) / thickness_mm
-            zz_spatial += layer_correction_profile(rho, nu) * (dx * dy / (np.pi * self.e_star * thickness_mm))
+            zz_spatial += layer_profile("normal", rho, nu) * (dx * dy / (np.pi * self.e_star * thickness_mm))
         self.zz = self._spectrum(zz_spatial)
         self._zz_single: np.ndarray | None = None
         # offsets -(n-1)..(n-1) in order: the response of the field to one cell is a slice of it
@@ -178,9 +236,28 @@ class KernelSet:
         x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g
         f = _corner_sum(_f_inv_r, x, y, a, b)
         c = 1.0 / (2.0 * np.pi * g)
-        return (c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, x, y, a, b)),
-                c * nu * _corner_sum(_h_xy, x, y, a, b),
-                c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, y, x, b, a)))
+        xx = c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, x, y, a, b))
+        xy = c * nu * _corner_sum(_h_xy, x, y, a, b)
+        yy = c * ((1.0 - nu) * f + nu * _corner_sum(_h_xx, y, x, b, a))
+        if self.thickness_mm is not None:
+            h = self.thickness_mm
+            rho, (ux, uy) = self._layer_geometry()
+            scale = 2.0 * a * 2.0 * b / (2.0 * np.pi * g * h)   # cell area / (2 pi G h)
+            iso = layer_profile("tangential_a", rho, nu) + 0.5 * layer_profile("tangential_b0", rho, nu)
+            aniso = layer_profile("tangential_b2", rho, nu)
+            xx = xx + scale * (iso - (ux * ux - 0.5) * aniso)
+            xy = xy - scale * ux * uy * aniso
+            yy = yy + scale * (iso - (uy * uy - 0.5) * aniso)
+        return xx, xy, yy
+
+    def _layer_geometry(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """rho = r / h of each offset of the padded grid, and the unit vector (x^, y^) toward it (0 at r = 0,
+        where the terms it multiplies vanish)."""
+        assert self.thickness_mm is not None
+        r = np.hypot(self._x, self._y)
+        safe = np.where(r > 0.0, r, 1.0)
+        unit = (np.where(r > 0.0, self._x / safe, 0.0), np.where(r > 0.0, self._y / safe, 0.0))
+        return r / self.thickness_mm, unit
 
     def tangential(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(xx, xy, yy) spectra: traction (MPa) -> in-plane displacement (mm)."""
@@ -218,10 +295,14 @@ class KernelSet:
         if self._radial is None:
             x, y, a, b = self._x, self._y, self._a, self._b
             c = -(1.0 - 2.0 * self.nu) / (4.0 * np.pi * self.g)
-            self._radial = (
-                self._spectrum(c * _corner_sum(_h_radial, x, y, a, b)),
-                self._spectrum(c * _corner_sum(_h_radial, y, x, b, a)),
-            )
+            rx = c * _corner_sum(_h_radial, x, y, a, b)
+            ry = c * _corner_sum(_h_radial, y, x, b, a)
+            if self.thickness_mm is not None:
+                rho, (ux, uy) = self._layer_geometry()
+                coupling = layer_profile("coupling", rho, self.nu) * (
+                    2.0 * a * 2.0 * b / (2.0 * np.pi * self.g * self.thickness_mm))
+                rx, ry = rx + ux * coupling, ry + uy * coupling
+            self._radial = (self._spectrum(rx), self._spectrum(ry))
         return self._radial
 
 

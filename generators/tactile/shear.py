@@ -22,6 +22,10 @@ displacement ``tangential_mm`` (dx, dy) in the pad frame and its twist ``twist_r
 5. In-plane displacement. ``u = K_t * q`` plus the radial term of the normal load
    (``-(1 - 2 nu) / (4 pi G)`` Boussinesq, zero at nu = 0.5), both by FFT convolution over the grid.
 
+With ``thickness_mm`` (``ContactConfig.gel = "layer"``) the coefficients of steps 2 and 5 are those of a gel
+layer bonded to its backing (:mod:`.kernels`): stiffer in shear, and a pressed layer pushes its surface
+outward where the half-space draws it in.
+
 Simplification: one reference per contact (not per cell), so partial-slip history is not carried between
 frames; the slip state is that of the whole contact. Tangential loads do not move the surface along the normal.
 """
@@ -96,15 +100,16 @@ class _DenseCells:
     microseconds, where each FFT convolution pays tens of microseconds of call overhead."""
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, grid_shape: tuple[int, int], dx: float, dy: float,
-                 material: Material) -> None:
+                 material: Material, thickness_mm: float | None = None) -> None:
         # the matrix depends only on the cells' relative positions: a contact that keeps its shape from one
         # frame to the next (about half the frames) reuses it
         rows, cols = rows - rows.min(), cols - cols.min()
-        key = (grid_shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, rows.tobytes(), cols.tobytes())
+        key = (grid_shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm,
+               rows.tobytes(), cols.tobytes())
         matrix = _RECENT_MATRICES.pop(key, None)
         if matrix is None:
             matrix = _dense_matrix(rows, cols, kernel_set(grid_shape, dx, dy, material.youngs_modulus_mpa,
-                                                           material.poisson_ratio))
+                                                           material.poisson_ratio, thickness_mm))
         _RECENT_MATRICES[key] = matrix
         while len(_RECENT_MATRICES) > RECENT_MATRICES_KEPT:
             _RECENT_MATRICES.popitem(last=False)
@@ -141,10 +146,10 @@ class _WindowCells:
     too large for a matrix."""
 
     def __init__(self, contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
-                 material: Material) -> None:
+                 material: Material, thickness_mm: float | None = None) -> None:
         win = _window(contact_mask, 2)
         self.shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
-        ks = kernel_set(self.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio)
+        ks = kernel_set(self.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
         # single precision: the solve stops at a relative residual of 1e-4, far above float32's 1e-7
         self.xx, self.xy, self.yy = ks.tangential_single()
         self.pad = ks.pad_shape
@@ -164,10 +169,10 @@ CellOperator = Callable[[np.ndarray], np.ndarray]
 
 
 def _cell_operator(contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
-                   material: Material, dense_max_cells: int) -> CellOperator:
+                   material: Material, dense_max_cells: int, thickness_mm: float | None = None) -> CellOperator:
     if rows.size <= dense_max_cells:
-        return _DenseCells(rows, cols, contact_mask.shape, dx, dy, material)
-    return _WindowCells(contact_mask, rows, cols, dx, dy, material)
+        return _DenseCells(rows, cols, contact_mask.shape, dx, dy, material, thickness_mm)
+    return _WindowCells(contact_mask, rows, cols, dx, dy, material, thickness_mm)
 
 
 # Relative residual at which the tangential solves stop. Marker positions are stored in px, where 1e-4 of the
@@ -228,11 +233,13 @@ def solve_shear(
     state: ContactState | None,
     slip_rounds: int = 8,
     dense_max_cells: int = DENSE_MAX_CELLS,
+    thickness_mm: float | None = None,
 ) -> ShearResult:
     """Tangential tractions, in-plane displacement (on the grid of ``pressure_mpa`` (ny, nx), cell centres
     ``x_mm`` (nx,), ``y_mm`` (ny,)), force and slip; see the module docstring. ``dense_max_cells``: contacts
     of at most this many cells are solved with a dense matrix, larger ones by FFT (same result within the
-    solve's tolerance)."""
+    solve's tolerance). ``thickness_mm``: the gel is a layer this thick bonded to its backing (None: a
+    half-space), for the tangential compliance and the pressure's in-plane displacement."""
     shape = pressure_mpa.shape
     zero2 = np.zeros((2, *shape))
     if not contact_mask.any():
@@ -256,7 +263,7 @@ def solve_shear(
     total_p = float(p.sum())
     cx, cy = float((p * gx).sum() / total_p), float((p * gy).sum() / total_p)
     rx, ry = gx - cx, gy - cy
-    op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells)
+    op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
     ones = np.ones(p.shape)
     every = np.ones(p.shape, dtype=bool)
 
@@ -306,7 +313,7 @@ def solve_shear(
 
     traction = np.zeros((2, *shape))
     traction[:, rows, cols] = q
-    ks = kernel_set(shape, dx_mm, dy_mm, material.youngs_modulus_mpa, material.poisson_ratio)
+    ks = kernel_set(shape, dx_mm, dy_mm, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
     # the radial term of p and the Cerruti term of q in one forward and one inverse transform (single precision:
     # the displacement moves markers stored in float32 px)
     loads = np.empty((3, *shape), np.float32)

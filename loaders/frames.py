@@ -229,7 +229,8 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
         compact, channels_last = self.config.compact, self.config.channels_last
         decoded: dict[str, tuple[str, torch.Tensor]] = {}   # field key -> (batch key, tensor)
         # I_marked is stored as a residual of I_pure: decode I_pure first and add its frames to the marked
-        # residuals rather than decode each I_pure frame twice (a fifth of a compact batch)
+        # residuals rather than decode each I_pure frame twice (0.67 -> 0.39 CPU-ms a compact sample, one
+        # thread; benchmarks/loader_throughput.py)
         fields = list(self.config.fields)
         # sources in field order: a damaged file fails on the same array as a single sample's read
         field_sources = {key: [(reader.frame_source(ref, f"tactile/{pad}/{FRAME_FIELDS[key]}"), frame)
@@ -322,7 +323,8 @@ def decode_images(sources: Sequence[tuple[FrameSource, int]], compact: bool, cha
     """
     height, width, _ = sources[0][0].frame_shape
     dtype = torch.uint8 if compact else torch.float32
-    frames = np.empty((len(sources), height, width, 3), np.uint8) if keep_frames else None
+    in_place = compact and channels_last   # the batch's memory holds the stored frames themselves
+    frames = np.empty((len(sources), height, width, 3), np.uint8) if keep_frames and not in_place else None
 
     def stored_frame(k: int, into: np.ndarray) -> np.ndarray:
         source, frame = sources[k]
@@ -336,7 +338,7 @@ def decode_images(sources: Sequence[tuple[FrameSource, int]], compact: bool, cha
     if channels_last:
         out = batch_tensor((len(sources), height, width, 3), dtype, buffers)
         hwc = out.numpy()
-        if compact:   # each slot is a stored frame's exact layout: decode straight into the batch
+        if in_place:   # each slot is a stored frame's exact layout: decode straight into the batch
             for k in range(len(sources)):
                 stored_frame(k, hwc[k])
             return out.permute(0, 3, 1, 2), (hwc if keep_frames else None)

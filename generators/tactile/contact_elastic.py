@@ -24,8 +24,9 @@ thickness bonded to a rigid backing (:mod:`.kernels`): stiffer than the half-spa
 nears the thickness (2 to 4 mm here, contact radii of 1 to 2 mm at the grasp depth), and its sink-in dies out
 within a few thicknesses instead of falling off like 1/r. Without it (``ContactConfig.gel = "half_space"``)
 the solver is the half-space one, exact against its closed forms (Hertz, flat punch), which the tests keep.
-The layer's pile-up around the contact (the surface rising toward the object, 3 to 12 % of the indentation
-for 5 and 10 mm spheres) is clipped: D is an indentation, >= 0.
+The layer's pile-up around the contact (the surface rising toward the object: 3 to 9 % of the press beside
+a 5 mm sphere, up to 29 % beside a cylinder across the pad; benchmarks/gel_models.py) is clipped: D is an
+indentation, >= 0.
 """
 
 from __future__ import annotations

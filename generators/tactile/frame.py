@@ -187,8 +187,7 @@ def simulate_frame(
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
     layer_mm = profile.gel_thickness_mm if contact_cfg.method == "elastic" and contact_cfg.gel == "layer" else None
-    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous,
-                           profile.gel_thickness_mm)
+    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous, layer_mm)
     if contact_cfg.method == "geometric":
         # on the image grid already: the depth holds the overlap and the pressure is zero off the mask
         depth, contact, pressure = result.depth_mm, result.contact_mask, result.pressure_mpa

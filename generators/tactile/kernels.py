@@ -44,7 +44,8 @@ corrections vary on the scale of h (2 to 4 mm), so they are sampled at cell cent
 
 ``S[f]`` is the four-corner sum ``f(X+a, Y+b) - f(X+a, Y-b) - f(X-a, Y+b) + f(X-a, Y-b)`` with ``a = dx/2``,
 ``b = dy/2``. The tangential -> normal coupling (proportional to 1 - 2 nu, small for silicone at nu ~ 0.48) is
-neglected. E* = E / (1 - nu^2), G = E / (2 (1 + nu)).
+neglected; for the layer too, where it is the pressure -> in-plane coupling's mirror (Maxwell-Betti) and up to
+a few times larger near k h = 1. E* = E / (1 - nu^2), G = E / (2 (1 + nu)).
 
 Convolutions are circular FFTs over a grid padded to twice the field size in each direction, so a field of
 (ny, nx) cells sees every other cell of the same grid exactly (no wrap-around). Kernel spectra are cached per
@@ -91,13 +92,18 @@ def layer_compliance_ratio(s: np.ndarray, nu: float) -> np.ndarray:
     return layer_ratios(s, nu)[0]
 
 
+def _tangential_b(s: np.ndarray, nu: float) -> np.ndarray:
+    _, along, across, _ = layer_ratios(s, nu)
+    return (1.0 - nu) * (along - 1.0) - (across - 1.0)
+
+
 #: The differences from the half-space that the spatial corrections transform, by name: (order of the Bessel
 #: function, g(s, nu)).
 _LAYER_TERMS = {
     "normal": (0, lambda s, nu: layer_ratios(s, nu)[0] - 1.0),
     "tangential_a": (0, lambda s, nu: layer_ratios(s, nu)[2] - 1.0),
-    "tangential_b0": (0, lambda s, nu: (1.0 - nu) * (layer_ratios(s, nu)[1] - 1.0) - (layer_ratios(s, nu)[2] - 1.0)),
-    "tangential_b2": (2, lambda s, nu: (1.0 - nu) * (layer_ratios(s, nu)[1] - 1.0) - (layer_ratios(s, nu)[2] - 1.0)),
+    "tangential_b0": (0, _tangential_b),
+    "tangential_b2": (2, _tangential_b),
     "coupling": (1, lambda s, nu: layer_ratios(s, nu)[3] + 0.5 * (1.0 - 2.0 * nu)),
 }
 
@@ -181,10 +187,10 @@ def _corner_sum(f, x: np.ndarray, y: np.ndarray, a: float, b: float) -> np.ndarr
 class KernelSet:
     """Spectra (rfft2 over the padded (2 ny, 2 nx) grid) of the influence coefficients for one grid.
 
-    ``zz``: pressure -> u_z (mm per MPa; of the layer when ``thickness_mm`` is given);
-    ``rx``/``ry``: pressure -> u_x / u_y (radial term);
+    ``zz``: pressure -> u_z (mm per MPa); ``rx``/``ry``: pressure -> u_x / u_y (radial term);
     ``xx``, ``xy``, ``yy``: tangential traction -> in-plane displacement (``xy`` serves both couplings).
-    Spatial kernels are built lazily, the normal one always.
+    All are the bonded layer's when ``thickness_mm`` (mm) is given, else the half-space's. Spatial kernels
+    are built lazily, the normal one always.
     """
 
     def __init__(self, shape: tuple[int, int], dx: float, dy: float, e_mpa: float, nu: float,
@@ -310,7 +316,7 @@ class KernelSet:
 def kernel_set(shape: tuple[int, int], dx: float, dy: float, e_mpa: float, nu: float,
                thickness_mm: float | None = None) -> KernelSet:
     """Cached :class:`KernelSet` for a field of ``shape`` (ny, nx) cells of ``dx x dy`` mm; ``thickness_mm``:
-    the normal response is that of a bonded layer this thick (None: half-space)."""
+    the coefficients are those of a bonded layer this thick (None: the half-space's)."""
     return KernelSet(shape, dx, dy, e_mpa, nu, thickness_mm)
 
 

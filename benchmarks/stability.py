@@ -117,14 +117,16 @@ def run_case(timestep_s: float, stiffness: float, v_fast: float, mode: str) -> d
 
 
 def elastic_convergence() -> list[dict[str, object]]:
+    """The elastic solver on grazing to deep presses, with the half-space and the bonded-layer gel."""
     profile = get_sensor(SENSOR)
-    config = TactileConfig(contact=ContactConfig(method="elastic"))
     rows = []
-    for name in ("sphere", "cylinder", "cross", "two_spheres"):
-        for depth in (0.0005, 0.002, 0.01, 0.05, 0.2, 0.5, 1.0, 1.4):
-            frame = simulate_frame(profile, demo_gap(profile, name, depth), config=config)
-            rows.append({"shape": name, "depth_mm": depth, "iterations": frame.iterations,
-                         "converged": frame.converged, "force_n": round(float(frame.normal_force_n), 5)})
+    for gel in ("half_space", "layer"):
+        config = TactileConfig(contact=ContactConfig(method="elastic", gel=gel))  # type: ignore[arg-type]
+        for name in ("sphere", "cylinder", "cross", "two_spheres"):
+            for depth in (0.0005, 0.002, 0.01, 0.05, 0.2, 0.5, 1.0, 1.4):
+                frame = simulate_frame(profile, demo_gap(profile, name, depth), config=config)
+                rows.append({"gel": gel, "shape": name, "depth_mm": depth, "iterations": frame.iterations,
+                             "converged": frame.converged, "force_n": round(float(frame.normal_force_n), 5)})
     return rows
 
 
@@ -169,9 +171,11 @@ def chart(result: dict, path) -> None:  # type: ignore[no-untyped-def,type-arg]
     ax.set_title("closing speed, default timestep and stiffness", fontsize=9)
     ax.legend(fontsize=8)
     ax = axes[3]
-    for shape in sorted({r["shape"] for r in result["elastic"]}):
-        rows = [r for r in result["elastic"] if r["shape"] == shape]
-        ax.plot([r["depth_mm"] for r in rows], [r["iterations"] for r in rows], "o-", label=shape)
+    for (gel, style), shape in ((g, s) for g in (("half_space", "o-"), ("layer", "^--"))
+                                for s in sorted({r["shape"] for r in result["elastic"]})):
+        rows = [r for r in result["elastic"] if r["shape"] == shape and r.get("gel", "half_space") == gel]
+        ax.plot([r["depth_mm"] for r in rows], [r["iterations"] for r in rows], style,
+                label=f"{shape}, {gel.replace('_', '-')}")
         for r in rows:
             if not r["converged"]:
                 ax.plot(r["depth_mm"], r["iterations"], "rx", ms=10)
@@ -179,7 +183,7 @@ def chart(result: dict, path) -> None:  # type: ignore[no-untyped-def,type-arg]
     ax.set_xlabel("press depth (mm)")
     ax.set_ylabel("Polonsky-Keer CG iterations")
     ax.set_title("elastic solver (red x: not converged)", fontsize=9)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=6, ncol=2)
     fig.suptitle("Stability: where the simulation fails (markers: ok, > past the safe limit, E energy growth, "
                  "W MuJoCo warning, NaN non-finite; blue box: defaults)", fontsize=10)
     fig.tight_layout()

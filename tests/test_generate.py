@@ -173,11 +173,14 @@ def test_gel_layer_option_is_recorded_checked_on_resume_and_elastic_only(tmp_pat
     assert geometric.returncode == 2 and "--gel layer applies to --contact elastic" in geometric.stderr
     assert not (tmp_path / "g").exists()
     args = ["generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "sphere", "--episodes-per-shape", "1",
-            "--frames-per-episode", "4", "--workers", "1", "--contact", "elastic"]
+            "--frames-per-episode", "20", "--workers", "1", "--contact", "elastic"]
     first = cli(*args, "--gel", "layer")
     assert first.returncode == 0, first.stderr
     episode = Dataset.open(tmp_path / "d").load_episode("gelsight_mini-sphere-0000")
     assert episode.meta.generator.settings["gel"] == "layer"
+    assert episode.meta.safety.max_indentation_mm > 0.1   # pressed, not just approached
+    validated = cli("validate", str(tmp_path / "d"))   # every rule holds for layer episodes too
+    assert validated.returncode == 0, validated.stdout + validated.stderr
     other = cli(*args)  # the default half-space into a layer dataset: refused, nothing written
     assert other.returncode == 2 and "gel='layer'" in other.stderr and "gel='half_space'" in other.stderr
 

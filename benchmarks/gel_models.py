@@ -35,7 +35,9 @@ from univtac_data.generators.tactile import (  # noqa: E402
     solve_contact,
     sphere_gap,
 )
+from univtac_data.generators.sim import SimConfig, cell_steps  # noqa: E402
 from univtac_data.generators.tactile.kernels import convolve, kernel_set  # noqa: E402
+from univtac_data.generators.tactile.sensor_model import downsample_overlap_or_mean  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402
 from univtac_data.storage.encoding import FRAME_BLOCK_BYTES, ZSTD_LEVEL  # noqa: E402
 
@@ -54,12 +56,12 @@ def indented_share(depth_um: np.ndarray) -> float:
 
 
 def pile_up_fraction(gap: np.ndarray, profile, depth: float) -> float:  # type: ignore[no-untyped-def]
-    """The layer's most negative displacement before clipping, over the press (solver grid)."""
-    step = 3 if profile.name == "gf225" else 2
+    """The layer's most negative displacement before clipping, over the press (on the generator's solver grid,
+    as ``simulate_frame`` solves it)."""
+    step = cell_steps(profile, SimConfig())[0]
     grid = sensor_grid(profile, step)
-    coarse = gap[step // 2::step, step // 2::step][: grid.shape[0], : grid.shape[1]]
-    result = solve_contact(coarse, grid, profile.material, ContactConfig(gel="layer"),
-                           thickness_mm=profile.gel_thickness_mm)
+    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, profile.material,
+                           ContactConfig(gel="layer", solver_step=step), thickness_mm=profile.gel_thickness_mm)
     ks = kernel_set(grid.shape, grid.dx_mm, grid.dy_mm, profile.material.youngs_modulus_mpa,
                     profile.material.poisson_ratio, profile.gel_thickness_mm)
     return round(float(convolve(result.pressure_mpa, ks.zz, ks.pad_shape).min()) / depth, 3)

@@ -42,6 +42,7 @@ from univtac_data.generators.indenters import TIP_HEIGHT_M, get_indenter
 from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, move, rotate
 from univtac_data.generators.recording import build_episode
 from univtac_data.generators.sim import FrameBudgetReached, GripperSim, SimConfig
+from univtac_data.generators.tactile import GelModel
 from univtac_data.schema.models import GeneratorInfo
 from univtac_data.schema.sensors import get_sensor
 from univtac_data.version import __version__
@@ -59,7 +60,7 @@ class IndenterEpisodeSpec:
     base_seed: int = 0
     frames: int = 60
     contact_method: Literal["geometric", "elastic"] = "geometric"
-    gel: Literal["half_space", "layer"] = "half_space"  # elastic contact only
+    gel: GelModel = "half_space"  # elastic contact only
     record_rate_hz: float = 60.0
     timestep_s: float = 0.001
 

@@ -23,14 +23,17 @@ from univtac_data.generators.tactile.kernels import (
     LAYER_RHO_MAX,
     convolve,
     kernel_set,
-    layer_compliance_ratio,
-    layer_correction_profile,
     layer_profile,
     layer_ratios,
 )
 from univtac_data.schema.sensors import get_sensor
 
 GF225 = get_sensor("gf225")
+
+
+def normal_ratio(s: np.ndarray, nu: float) -> np.ndarray:
+    """R_N(s): the bonded layer's normal surface compliance over the half-space's."""
+    return layer_ratios(s, nu)[0]
 LAYER = TactileConfig(contact=ContactConfig(method="elastic", gel="layer"))
 HALF_SPACE = TactileConfig(contact=ContactConfig(method="elastic", gel="half_space"))
 
@@ -66,7 +69,6 @@ def navier_layer_response(k: float, h: float, nu: float, load: str) -> tuple[flo
 @pytest.mark.parametrize("k, h, nu", [(1.0, 1.0, 0.3), (2.0, 0.5, 0.48), (0.7, 2.0, 0.45), (3.0, 0.2, 0.1)])
 def test_layer_compliances_solve_navier_equations(k: float, h: float, nu: float) -> None:
     normal, along, across, coupling = (float(r) for r in layer_ratios(np.array(k * h), nu))
-    assert normal == float(layer_compliance_ratio(np.array(k * h), nu))
     u_pressed, w_pressed = navier_layer_response(k, h, nu, "normal")
     u_sheared, w_sheared = navier_layer_response(k, h, nu, "shear")
     # half-space compliances with G = 1: normal 2 / (E* k) = (1 - nu) / k, along k (1 - nu) / k
@@ -84,32 +86,32 @@ def test_layer_compliances_solve_navier_equations(k: float, h: float, nu: float)
 def test_layer_compliance_limits(nu: float) -> None:
     e, h = 0.5, 2.0
     e_star = e / (1 - nu * nu)
-    assert float(layer_compliance_ratio(np.array(40.0), nu)) == pytest.approx(1.0, abs=1e-12)  # thick: half-space
+    assert float(normal_ratio(np.array(40.0), nu)) == pytest.approx(1.0, abs=1e-12)  # thick: half-space
     k = 1e-4 / h  # thin: the oedometric layer, u = p h (1 + nu)(1 - 2 nu) / (E (1 - nu))
-    thin = 2.0 / (e_star * k) * float(layer_compliance_ratio(np.array(k * h), nu))
+    thin = 2.0 / (e_star * k) * float(normal_ratio(np.array(k * h), nu))
     assert thin == pytest.approx(h * (1 + nu) * (1 - 2 * nu) / (e * (1 - nu)), rel=1e-3)
-    assert np.isfinite(layer_compliance_ratio(np.array([0.0, 1e3, 1e6]), nu)).all()  # no overflow
+    assert np.isfinite(normal_ratio(np.array([0.0, 1e3, 1e6]), nu)).all()  # no overflow
 
 
 def test_incompressible_thin_layer_is_the_squeeze_film() -> None:
     e, h, nu = 0.3, 1.0, 0.5
     g, e_star = e / 3.0, e / 0.75
     for k in (1e-2, 3e-2):
-        compliance = 2.0 / (e_star * k) * float(layer_compliance_ratio(np.array(k * h), nu))
+        compliance = 2.0 / (e_star * k) * float(normal_ratio(np.array(k * h), nu))
         assert compliance == pytest.approx(k * k * h**3 / (3.0 * g), rel=2e-3)
 
 
 @pytest.mark.parametrize("rho", [0.0, 0.3, 1.0, 2.5, 6.0, 12.0])
 def test_correction_profile_matches_adaptive_quadrature(rho: float) -> None:
     nu = 0.48
-    expected = quad(lambda s: (layer_compliance_ratio(np.array(s), nu) - 1.0) * j0(s * rho), 0.0, 40.0,
+    expected = quad(lambda s: (normal_ratio(np.array(s), nu) - 1.0) * j0(s * rho), 0.0, 40.0,
                     limit=2000)[0]
-    assert float(layer_correction_profile(np.array(rho), nu)) == pytest.approx(expected, abs=1e-6)
+    assert float(layer_profile("normal", np.array(rho), nu)) == pytest.approx(expected, abs=1e-6)
 
 
 def test_correction_profile_cancels_the_half_space_tail() -> None:
     rho = np.array([LAYER_RHO_MAX - 0.01, LAYER_RHO_MAX + 0.01, 40.0])
-    assert np.allclose(layer_correction_profile(rho, 0.48), -1.0 / rho, rtol=1e-4, atol=0)
+    assert np.allclose(layer_profile("normal", rho, 0.48), -1.0 / rho, rtol=1e-4, atol=0)
 
 
 def test_uniform_pressure_on_a_wide_patch_compresses_the_layer_oedometrically() -> None:

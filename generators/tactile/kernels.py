@@ -44,8 +44,8 @@ corrections vary on the scale of h (2 to 4 mm), so they are sampled at cell cent
 
 ``S[f]`` is the four-corner sum ``f(X+a, Y+b) - f(X+a, Y-b) - f(X-a, Y+b) + f(X-a, Y-b)`` with ``a = dx/2``,
 ``b = dy/2``. The tangential -> normal coupling (proportional to 1 - 2 nu, small for silicone at nu ~ 0.48) is
-neglected; for the layer too, where it is the pressure -> in-plane coupling's mirror (Maxwell-Betti) and up to
-a few times larger near k h = 1. E* = E / (1 - nu^2), G = E / (2 (1 + nu)).
+neglected; for the layer too, where it is the pressure -> in-plane coupling's mirror (Maxwell-Betti) and
+larger: C(1) is 6.6 times the half-space's value (with the opposite sign) for nu = 0.48. E* = E / (1 - nu^2), G = E / (2 (1 + nu)).
 
 Convolutions are circular FFTs over a grid padded to twice the field size in each direction, so a field of
 (ny, nx) cells sees every other cell of the same grid exactly (no wrap-around). Kernel spectra are cached per
@@ -60,8 +60,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import j0, j1
 
-__all__ = ["KernelSet", "convolve", "kernel_set", "layer_compliance_ratio", "layer_correction_profile",
-           "layer_profile", "layer_ratios"]
+__all__ = ["KernelSet", "convolve", "kernel_set", "layer_profile", "layer_ratios"]
 
 # T[g, Jn](rho) is tabulated on [0, LAYER_RHO_MAX] and taken as g(0) / rho beyond, where the two differ by
 # < 2e-6 (relative 1e-4 or less); the integrands have decayed below 1e-25 at s = LAYER_S_MAX.
@@ -87,11 +86,6 @@ def layer_ratios(s: np.ndarray, nu: float) -> tuple[np.ndarray, np.ndarray, np.n
     return normal, along, np.tanh(s), coupling
 
 
-def layer_compliance_ratio(s: np.ndarray, nu: float) -> np.ndarray:
-    """R_N(s), s = k h >= 0: the bonded layer's normal surface compliance over the half-space's."""
-    return layer_ratios(s, nu)[0]
-
-
 def _tangential_b(s: np.ndarray, nu: float) -> np.ndarray:
     _, along, across, _ = layer_ratios(s, nu)
     return (1.0 - nu) * (along - 1.0) - (across - 1.0)
@@ -111,7 +105,8 @@ _LAYER_TERMS = {
 @lru_cache(maxsize=8)
 def _layer_tables(nu: float) -> dict[str, tuple[np.ndarray, float]]:
     """T[g, Jn] of every term of ``_LAYER_TERMS`` on the rho grid, and g(0): one pass over the Bessel
-    functions for all of them (J2 by the recurrence 2 J1(x) / x - J0(x); scipy's any-order jv took seconds)."""
+    functions for all of them (J2 by the recurrence 2 J1(x) / x - J0(x): scipy's j0 and j1 are much faster
+    than its any-order jv)."""
     step = _LAYER_S_STEP
     s = np.arange(0.0, LAYER_S_MAX + step / 2, step)
     weights = np.full(s.size, step)
@@ -145,12 +140,6 @@ def layer_profile(term: str, rho: np.ndarray, nu: float) -> np.ndarray:
     table, g0 = _layer_tables(float(nu))[term]
     inside = np.interp(rho, np.arange(table.size) * _LAYER_RHO_STEP, table)
     return np.where(rho <= LAYER_RHO_MAX, inside, g0 / np.maximum(rho, LAYER_RHO_MAX))
-
-
-def layer_correction_profile(rho: np.ndarray, nu: float) -> np.ndarray:
-    """T[R_N - 1, J0](rho): the normal correction (the correction to the influence of a point load P is
-    P / (pi E* h) times it)."""
-    return layer_profile("normal", rho, nu)
 
 
 def _asinh_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -197,6 +186,7 @@ class KernelSet:
                  thickness_mm: float | None = None) -> None:
         self.shape = shape
         self.thickness_mm = thickness_mm
+        self._layer_geom: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None
         self.pad_shape = (2 * shape[0], 2 * shape[1])
         ny, nx = shape
         # offsets of the padded circular grid: 0..n-1 then -n..-1
@@ -209,7 +199,7 @@ class KernelSet:
         self.nu = nu
         zz_spatial = _corner_sum(_f_inv_r, self._x, self._y, self._a, self._b) / (np.pi * self.e_star)
         if thickness_mm is not None:
-            rho = np.hypot(self._x, self._y) / thickness_mm
+            rho, _ = self._layer_geometry()
             zz_spatial += layer_profile("normal", rho, nu) * (dx * dy / (np.pi * self.e_star * thickness_mm))
         self.zz = self._spectrum(zz_spatial)
         self._zz_single: np.ndarray | None = None
@@ -258,12 +248,14 @@ class KernelSet:
 
     def _layer_geometry(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """rho = r / h of each offset of the padded grid, and the unit vector (x^, y^) toward it (0 at r = 0,
-        where the terms it multiplies vanish)."""
+        where the terms it multiplies vanish); computed once per kernel set."""
         assert self.thickness_mm is not None
-        r = np.hypot(self._x, self._y)
-        safe = np.where(r > 0.0, r, 1.0)
-        unit = (np.where(r > 0.0, self._x / safe, 0.0), np.where(r > 0.0, self._y / safe, 0.0))
-        return r / self.thickness_mm, unit
+        if self._layer_geom is None:
+            r = np.hypot(self._x, self._y)
+            safe = np.where(r > 0.0, r, 1.0)
+            unit = (np.where(r > 0.0, self._x / safe, 0.0), np.where(r > 0.0, self._y / safe, 0.0))
+            self._layer_geom = (r / self.thickness_mm, unit)
+        return self._layer_geom
 
     def tangential(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(xx, xy, yy) spectra: traction (MPa) -> in-plane displacement (mm)."""

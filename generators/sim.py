@@ -23,6 +23,7 @@ from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,
     GelModel,
+    PixelBuffers,
     TactileConfig,
     gap_field,
     pad_pose,
@@ -33,9 +34,11 @@ from univtac_data.generators.tactile import (
 from univtac_data.schema.sensors import SensorProfile
 
 GAP_PROBE_MAX_MM = 10.0  # farthest pad-object distance the controllers need to know, mm
-# Gap beyond this reads as "far" in the tactile gap field: the contact solve and the shading only see the
-# gel where the object is within a fraction of a millimetre, so farther geometry is not worth evaluating.
-TACTILE_GAP_CUTOFF_MM = 2.0
+# Gap beyond this reads as "far" in the tactile gap field: the elastic contact solve and the shading only
+# see the gel where the object is within a fraction of a millimetre, so farther geometry is not worth
+# evaluating. The geometric contact reads the overlap alone (gap < 0), so for it the gap field stops at the
+# gel surface: the same frames from the part of the object below it, on a window a fraction of the size.
+TACTILE_GAP_CUTOFF_MM = {"elastic": 2.0, "geometric": 0.0}
 
 
 class FrameBudgetReached(Exception):
@@ -117,6 +120,8 @@ class GripperSim:
         #: per-pixel recorded arrays by path (``tactile/{pad}/marked_rgb``, ...), filled frame by frame
         self.pixels: dict[str, FrameStack] = {}
         self._grid = sensor_grid(profile, 1)
+        self._gap_cutoff_mm = TACTILE_GAP_CUTOFF_MM[self.config.contact_method]
+        self._pixel_layout = PixelBuffers.layout(profile.image_height_px, profile.image_width_px)
         solver_step, shear_step = cell_steps(profile, self.config)
         self._tactile = TactileConfig(
             shear_step=shear_step,
@@ -218,15 +223,18 @@ class GripperSim:
             pad_pos, pad_mat = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
             rel = relative_pose(pad_pos, pad_mat, obj_pos, obj_mat)
             gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid,
-                            cutoff_mm=TACTILE_GAP_CUTOFF_MM)
+                            cutoff_mm=self._gap_cutoff_mm)
             tangential_mm, twist_rad = self._motion_since_onset(pad, gap, pad_pos, pad_mat, obj_pos, obj_mat)
+            stacks = {name: self.pixels[f"tactile/{pad}/{name}"] for name in PIXEL_FIELDS}
+            rows = PixelBuffers(**{name: stack.next_row(*self._pixel_layout[name]) for name, stack in stacks.items()})
             frame = simulate_frame(
                 self.profile, gap, method=self.config.contact_method,
                 tangential_mm=tangential_mm, twist_rad=twist_rad, state=self._states[pad], config=self._tactile,
+                out=rows,
             )
+            for stack in stacks.values():
+                stack.commit()
             self._states[pad] = frame.state
-            for name in PIXEL_FIELDS:
-                self.pixels[f"tactile/{pad}/{name}"].append(getattr(frame, name))
             tactile[pad] = PadRecord(frame.markers_ref_px, frame.markers_px, float(frame.normal_force_n),
                                      frame.shear_force_n, float(frame.slip_mm))
             in_pad[pad] = rel
@@ -253,7 +261,7 @@ class GripperSim:
         near the identity (the object's own axes may be aligned with the pad normal, where an angle read
         from them is undefined).
         """
-        if not (gap < 0.0).any():
+        if not gap.min() < 0.0:   # no overlap (one read of the field, no mask)
             self._anchors[pad] = None
             return (0.0, 0.0), 0.0
         if self._anchors[pad] is None:

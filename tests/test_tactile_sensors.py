@@ -32,7 +32,8 @@ def test_frame_fills_the_format(profile: SensorProfile, method: str) -> None:
     h, w, n = profile.image_height_px, profile.image_width_px, profile.n_markers
     expected = {
         "marked_rgb": ((h, w, 3), np.uint8), "pure_rgb": ((h, w, 3), np.uint8), "depth_um": ((h, w), np.uint16),
-        "depth_mm": ((h, w), np.float32), "pressure_mpa": ((h, w), np.float32), "contact_mask": ((h, w), np.bool_),
+        # depth_mm and pressure_mpa are the solver's float64 fields (the format stores depth_um)
+        "depth_mm": ((h, w), np.float64), "pressure_mpa": ((h, w), np.float64), "contact_mask": ((h, w), np.bool_),
         "markers_ref_px": ((n, 2), np.float32), "markers_px": ((n, 2), np.float32),
         "shear_force_n": ((2,), np.float32),
     }

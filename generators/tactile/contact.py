@@ -52,6 +52,8 @@ class ContactResult:
     ``pressure_mpa``: (ny, nx) float64 normal pressure, MPa, >= 0. ``contact_mask``: (ny, nx) bool, p > 0
     (elastic) or overlap > 0 (geometric). ``normal_force_n``: total normal load, N.
     ``iterations``/``converged``: elastic CG bookkeeping (0/True for the geometric method).
+    ``box``: (rows, cols) slices outside which depth and pressure are zero and the mask is false, when the
+    solver knows it (the geometric one does); None: anywhere.
     """
 
     depth_mm: np.ndarray
@@ -60,6 +62,7 @@ class ContactResult:
     normal_force_n: float
     iterations: int = 0
     converged: bool = True
+    box: tuple[slice, slice] | None = None
 
 
 def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,

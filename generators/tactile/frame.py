@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
+import numba
 import numpy as np
 
 from univtac_data.schema.sensors import SensorProfile
@@ -23,7 +24,7 @@ from .sensor_model import (
 )
 from .shear import ContactState, solve_shear
 
-__all__ = ["TactileConfig", "TactileFrame", "render_reference", "simulate_frame"]
+__all__ = ["PixelBuffers", "TactileConfig", "TactileFrame", "render_reference", "simulate_frame"]
 
 CONTACT_TOL_MM = 1e-3
 """A pixel is in contact when the gel surface is within this distance of the object (1 um, the depth_um
@@ -46,8 +47,8 @@ class TactileConfig:
 class TactileFrame:
     """One pad, one frame. Image-grid arrays are (H, W) at the sensor's native resolution, gel-pad frame.
 
-    ``depth_mm``: (H, W) float32 indentation toward the camera, mm, >= 0. ``depth_um``: (H, W) uint16, the
-    same in integer micrometres. ``pressure_mpa``: (H, W) float32 normal pressure, MPa. ``contact_mask``:
+    ``depth_mm``: (H, W) float64 indentation toward the camera, mm, >= 0. ``depth_um``: (H, W) uint16, the
+    same in integer micrometres. ``pressure_mpa``: (H, W) float64 normal pressure, MPa. ``contact_mask``:
     (H, W) bool. ``normal_force_n``: float32 N. ``shear_force_n``: (2,) float32 N along pad x, y (force of the
     object on the gel). ``markers_ref_px``/``markers_px``: (N, 2) float32 (u = column, v = row) px.
     ``slip_mm``: float32, sliding since contact onset (0 while stuck). ``pure_rgb``/``marked_rgb``:
@@ -68,6 +69,32 @@ class TactileFrame:
     state: ContactState
     converged: bool = True
     iterations: int = 0
+
+
+@dataclass(frozen=True)
+class PixelBuffers:
+    """Arrays ``simulate_frame`` writes a frame's recorded per-pixel fields into, e.g. the rows of the
+    episode's arrays (``FrameStack.next_row``), which saves a copy of each: ``marked_rgb`` and ``pure_rgb``
+    (H, W, 3) uint8 (``marked_rgb`` C-contiguous), ``depth_um`` (H, W) uint16, ``contact_mask`` (H, W) bool."""
+
+    marked_rgb: np.ndarray
+    pure_rgb: np.ndarray
+    depth_um: np.ndarray
+    contact_mask: np.ndarray
+
+    @staticmethod
+    def layout(h: int, w: int) -> dict[str, tuple[tuple[int, ...], type]]:
+        """(shape, dtype) of each buffer for an (h, w) sensor, by field name."""
+        return {"marked_rgb": ((h, w, 3), np.uint8), "pure_rgb": ((h, w, 3), np.uint8),
+                "depth_um": ((h, w), np.uint16), "contact_mask": ((h, w), np.bool_)}
+
+    def check(self, h: int, w: int) -> None:
+        """Raise ValueError unless every buffer has the shape and dtype of its field for an (h, w) sensor."""
+        for name, (shape, dtype) in self.layout(h, w).items():
+            array = getattr(self, name)
+            if array.shape != shape or array.dtype != dtype:
+                raise ValueError(f"PixelBuffers.{name} must be {shape} {np.dtype(dtype)} "
+                                 f"(got {array.shape} {array.dtype})")
 
 
 def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -> np.ndarray:
@@ -100,16 +127,40 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
     return out
 
 
-def _to_micrometres(depth_mm: np.ndarray) -> np.ndarray:
-    """(H, W) mm >= 0 -> uint16 um, rounded, saturating at 65535."""
-    out = np.zeros(depth_mm.shape, np.uint16)
-    win = _nonzero_box(depth_mm)   # zero depth is 0 um: only the deformed box is converted
+def _to_micrometres(depth_mm: np.ndarray, box: tuple[slice, slice] | None = None,
+                    out: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) mm >= 0 -> uint16 um, rounded, saturating at 65535, into ``out`` (H, W) uint16 if given.
+    ``box``: (rows, cols) outside which the depth is zero, if known."""
+    if out is None:
+        out = np.zeros(depth_mm.shape, np.uint16)
+    else:
+        out[...] = 0
+    # zero depth is 0 um: only the deformed box is converted
+    win = _nonzero_box(depth_mm) if box is None else box
     if win is not None:
-        um = depth_mm[win] * 1000.0
-        um += 0.5
-        np.minimum(um, float(np.iinfo(np.uint16).max), out=um)
-        out[win] = um
+        (r0, r1), (c0, c1) = win[0].indices(depth_mm.shape[0])[:2], win[1].indices(depth_mm.shape[1])[:2]
+        _micrometres_kernel(depth_mm, r0, r1, c0, c1, out)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _micrometres_kernel(depth_mm: np.ndarray, r0: int, r1: int, c0: int, c1: int,
+                        out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    # one pass over the box, where array code makes four (and a float64 temporary); row slices, so that the
+    # loop vectorises (element-wise 2-D indexing does not)
+    for i in range(r0, r1):
+        depth_row, out_row = depth_mm[i, c0:c1], out[i, c0:c1]
+        for j in range(c1 - c0):
+            out_row[j] = np.uint16(min(depth_row[j] * 1000.0 + 0.5, 65535.0))
+
+
+def _aligned(box: tuple[slice, slice], align: int, h: int, w: int) -> tuple[slice, slice] | None:
+    """``box`` widened outward to multiples of ``align`` (clipped at h and w); None when it is empty."""
+    (r0, r1), (c0, c1) = (box[0].indices(h)[:2]), (box[1].indices(w)[:2])
+    if r1 <= r0 or c1 <= c0:
+        return None
+    return (slice(r0 // align * align, min(-(-r1 // align) * align, h)),
+            slice(c0 // align * align, min(-(-c1 // align) * align, w)))
 
 
 def _nonzero_box(field: np.ndarray, align: int = 1) -> tuple[slice, slice] | None:
@@ -126,13 +177,14 @@ def _nonzero_box(field: np.ndarray, align: int = 1) -> tuple[slice, slice] | Non
     return slice(int(r0), int(r1)), slice(int(c0), int(c1))
 
 
-def _block_mean_of_load(pressure: np.ndarray, factor: int) -> np.ndarray:
-    """``downsample_mean(pressure, factor, "constant")``, bit for bit, summing only the blocks under the load."""
+def _block_mean_of_load(pressure: np.ndarray, factor: int, box: tuple[slice, slice] | None = None) -> np.ndarray:
+    """``downsample_mean(pressure, factor, "constant")``, bit for bit, summing only the blocks under the load.
+    ``box``: (rows, cols) outside which the pressure is zero, if known."""
     if factor == 1:
         return pressure
     h, w = pressure.shape
     out = np.zeros((-(-h // factor), -(-w // factor)))
-    win = _nonzero_box(pressure, factor)
+    win = _nonzero_box(pressure, factor) if box is None else _aligned(box, factor, h, w)
     if win is not None:
         coarse = (slice(win[0].start // factor, -(-win[0].stop // factor)),
                   slice(win[1].start // factor, -(-win[1].stop // factor)))
@@ -161,6 +213,7 @@ def simulate_frame(
     state: ContactState | None = None,
     noise_seed: int | None = None,
     config: TactileConfig | None = None,
+    out: PixelBuffers | None = None,
 ) -> TactileFrame:
     """Simulate one pad for one frame.
 
@@ -169,6 +222,8 @@ def simulate_frame(
     "elastic" (default: ``config.contact.method``). ``tangential_mm``: object displacement (x, y) in the pad
     frame, mm; ``twist_rad``: its rotation about the pad normal, rad; both relative to contact onset when
     ``state`` is None, else absolute (the state remembers the onset). ``noise_seed``: seeded sensor noise.
+    ``out``: buffers the frame's images, ``depth_um`` and ``contact_mask`` are written into (the returned
+    frame holds them); default: new arrays.
     """
     config = config or TactileConfig()
     contact_cfg = config.contact
@@ -178,9 +233,13 @@ def simulate_frame(
     gap = np.asarray(gap_mm, dtype=np.float64)
     if gap.shape != (h, w):
         raise ValueError(f"gap_mm must be (H, W) = ({h}, {w}) for sensor {profile.name!r} (got {gap.shape})")
-    gap = np.minimum(gap, GAP_FAR_MM)
-    if np.isnan(gap.sum()):   # NaN survives the clamp and the sum; one pass, no mask
+    top = float(gap.max())   # one read: NaN propagates through the max, and most callers need no clamp
+    if np.isnan(top):
         raise ValueError("gap_mm contains NaN")
+    if top > GAP_FAR_MM:
+        gap = np.minimum(gap, GAP_FAR_MM)
+    if out is not None:
+        out.check(h, w)
     material = profile.material
 
     step = contact_cfg.solver_step if contact_cfg.method == "elastic" else 1
@@ -188,6 +247,7 @@ def simulate_frame(
     previous = state.pressure_mpa if state is not None else None
     layer_mm = profile.gel_thickness_mm if contact_cfg.method == "elastic" and contact_cfg.gel == "layer" else None
     result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous, layer_mm)
+    box = result.box if step == 1 else None  # the solver's box, in image pixels
     if contact_cfg.method == "geometric":
         # on the image grid already: the depth holds the overlap and the pressure is zero off the mask
         depth, contact, pressure = result.depth_mm, result.contact_mask, result.pressure_mpa
@@ -205,7 +265,7 @@ def simulate_frame(
     shear_step = step * max(1, -(-config.shear_step // step))
     grid_sh = sensor_grid(profile, shear_step)
     factor = shear_step // step
-    p_sh = _block_mean_of_load(result.pressure_mpa, factor)
+    p_sh = _block_mean_of_load(result.pressure_mpa, factor, result.box)
     shear = solve_shear(
         p_sh, p_sh > 0.0, grid_sh.dx_mm, grid_sh.dy_mm, grid_sh.x_mm, grid_sh.y_mm, material,
         tangential_mm, twist_rad, state, thickness_mm=layer_mm,
@@ -229,14 +289,21 @@ def simulate_frame(
             noise = np.random.default_rng(noise_seed).normal(0.0, config.shading.noise_std, pure.shape)
             pure = np.clip(np.rint(pure + noise), 0, 255).astype(np.uint8)
     else:
-        pure = render_shaded(depth, profile, config.shading, noise_seed)
-    marked = draw_markers(pure, markers_px, profile.marker_radius_px, profile.optics.marker_rgb)
+        pure = render_shaded(depth, profile, config.shading, noise_seed, deformed_box=box,
+                             out=None if out is None else out.pure_rgb)
+    marked = draw_markers(pure, markers_px, profile.marker_radius_px, profile.optics.marker_rgb,
+                          out=None if out is None else out.marked_rgb)
+    if out is not None:
+        if config.optics == "calibrated":
+            out.pure_rgb[...] = pure
+            pure = out.pure_rgb
+        out.contact_mask[...] = contact
+        contact = out.contact_mask
 
-    depth32 = depth.astype(np.float32)
     return TactileFrame(
-        depth_mm=depth32,
-        depth_um=_to_micrometres(depth),
-        pressure_mpa=pressure.astype(np.float32),
+        depth_mm=depth,
+        depth_um=_to_micrometres(depth, box, None if out is None else out.depth_um),
+        pressure_mpa=pressure,
         contact_mask=contact,
         normal_force_n=np.float32(result.normal_force_n),
         shear_force_n=shear.shear_force_n.astype(np.float32),

@@ -90,11 +90,12 @@ def gap_field(
     Supported geom types: sphere, capsule, cylinder, box, ellipsoid, mesh (convex or not). Gaps above
     ``cutoff_mm`` (and cells with no object) read ``GAP_FAR_MM``.
     """
-    gap = np.full(grid.shape, np.inf)
+    gap = np.full(grid.shape, GAP_FAR_MM)
     # the object's part above the cutoff reads GAP_FAR_MM whatever its height, so each geom is cut there
     # (with rounding slack) and evaluated only on the cells under what is left
     z_max = cutoff_mm + SLACK_MM
     triangles = []
+    written: list[tuple[slice, slice]] = []  # the boxes of cells that may hold a gap below GAP_FAR_MM
     for geom in geoms:
         gid = _geom_id(model, geom)
         gtype = int(model.geom_type[gid])
@@ -110,10 +111,22 @@ def gap_field(
                                                                z_max):
             win = _window(grid, extent)
             if win is not None:
-                lower_to_entry(gap[win], grid.x_mm[win[1]], grid.y_mm[win[0]], kind, rot, part_pos, part_size)
+                lower_to_entry(gap, grid.x_mm, grid.y_mm, kind, rot, part_pos, part_size, window=win)
+                written.append(win)
     if triangles:  # all mesh geoms in one scan: the per-call set-up costs more than a small mesh's cells
-        rasterise_lowest(gap, grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
-    return np.where(gap > cutoff_mm, GAP_FAR_MM, gap)
+        box = rasterise_lowest(gap, grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
+        if box is not None:
+            written.append(box)
+    if written:
+        near = gap[_union(written)]
+        near[near > cutoff_mm] = GAP_FAR_MM
+    return gap
+
+
+def _union(boxes: list[tuple[slice, slice]]) -> tuple[slice, slice]:
+    """The smallest (rows, cols) box holding every one of ``boxes`` (non-empty, slices with start and stop)."""
+    return (slice(min(b[0].start for b in boxes), max(b[0].stop for b in boxes)),
+            slice(min(b[1].start for b in boxes), max(b[1].stop for b in boxes)))
 
 
 ConvexPart = tuple[Extent, int, np.ndarray, np.ndarray]  # xy box, kind, centre (3,) mm, size (3,) mm

@@ -31,13 +31,22 @@ def sample_bilinear(field: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray, p
 
 
 def draw_markers(
-    pure_rgb: np.ndarray, markers_px: np.ndarray, radius_px: float, marker_rgb: tuple[int, int, int]
+    pure_rgb: np.ndarray, markers_px: np.ndarray, radius_px: float, marker_rgb: tuple[int, int, int],
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """I_marked (H, W, 3) uint8: ``pure_rgb`` with anti-aliased discs at ``markers_px`` (N, 2) (u, v) px.
 
     Each pixel within a disc's reach takes coverage ``a = clip(radius + 0.5 - distance, 0, 1)`` in float32 (the
-    largest over the markers that reach it) and becomes ``rint(under + (marker - under) * a)``."""
-    out = np.array(pure_rgb, dtype=np.uint8, order="C", copy=True)
+    largest over the markers that reach it) and becomes ``rint(under + (marker - under) * a)``. ``out``: a
+    C-contiguous (H, W, 3) uint8 array to write into and return (not ``pure_rgb`` itself)."""
+    if out is None:
+        out = np.array(pure_rgb, dtype=np.uint8, order="C", copy=True)
+    else:
+        if out.shape != pure_rgb.shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be C-contiguous {pure_rgb.shape} uint8 (got {out.shape} {out.dtype})")
+        if np.may_share_memory(out, pure_rgb):
+            raise ValueError("out must not share memory with pure_rgb (I_pure stays unmarked)")
+        out[...] = pure_rgb
     h, w, _ = out.shape
     centres = np.ascontiguousarray(markers_px, dtype=np.float64).reshape(-1, 2)
     _draw_discs(out.reshape(-1), h, w, centres, np.float32(radius_px + 0.5), int(np.ceil(radius_px + 1.5)),

@@ -96,10 +96,12 @@ def _shade_kernel(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dx:
     for i in range(r0, r1):
         up, down = max(i - 1, r0), min(i + 1, r1 - 1)
         scale_y = half_dy if down - up == 2 else (inv_dy if down > up else np.float32(0.0))
+        # row slices, not element-wise 2-D indexing: only loops over contiguous rows vectorise
+        depth_here, depth_above, depth_below = depth[i, c0:c1], depth[up, c0:c1], depth[down, c0:c1]
         for j in range(w):
-            here[j] = depth[i, c0 + j]
-            above[j] = depth[up, c0 + j]
-            below[j] = depth[down, c0 + j]
+            here[j] = depth_here[j]
+            above[j] = depth_above[j]
+            below[j] = depth_below[j]
         for j in range(1, w - 1):
             gx[j] = (here[j + 1] - here[j - 1]) * half_dx
         if w > 1:
@@ -120,13 +122,15 @@ def _shade_kernel(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dx:
                 s1[j] += g1 * lam
                 s2[j] += g2 * lam
         if write_image:
+            image_row, background_row = image[i, c0:c1], background[i, c0:c1]
             for j in range(w):
-                image[i, c0 + j, 0] = np.uint8(min(max(np.rint(background[i, c0 + j, 0] + s0[j]), np.float32(0.0)), np.float32(255.0)))
-                image[i, c0 + j, 1] = np.uint8(min(max(np.rint(background[i, c0 + j, 1] + s1[j]), np.float32(0.0)), np.float32(255.0)))
-                image[i, c0 + j, 2] = np.uint8(min(max(np.rint(background[i, c0 + j, 2] + s2[j]), np.float32(0.0)), np.float32(255.0)))
+                image_row[j, 0] = np.uint8(min(max(np.rint(background_row[j, 0] + s0[j]), np.float32(0.0)), np.float32(255.0)))
+                image_row[j, 1] = np.uint8(min(max(np.rint(background_row[j, 1] + s1[j]), np.float32(0.0)), np.float32(255.0)))
+                image_row[j, 2] = np.uint8(min(max(np.rint(background_row[j, 2] + s2[j]), np.float32(0.0)), np.float32(255.0)))
         else:
+            shade_row = shade[i - r0]
             for j in range(w):
-                shade[i - r0, j, 0], shade[i - r0, j, 1], shade[i - r0, j, 2] = s0[j], s1[j], s2[j]
+                shade_row[j, 0], shade_row[j, 1], shade_row[j, 2] = s0[j], s1[j], s2[j]
 
 
 @lru_cache(maxsize=16)
@@ -144,19 +148,31 @@ def _background_uint8(profile: SensorProfile) -> np.ndarray:
 
 
 def render_shaded(
-    depth_mm: np.ndarray, profile: SensorProfile, config: ShadingConfig = ShadingConfig(), noise_seed: int | None = None
+    depth_mm: np.ndarray, profile: SensorProfile, config: ShadingConfig = ShadingConfig(), noise_seed: int | None = None,
+    *, deformed_box: tuple[slice, slice] | None = None, out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """I_pure (H, W, 3) uint8 from the depth map (H, W) mm on the image grid."""
-    deformed = depth_mm > config.depth_floor_mm
+    """I_pure (H, W, 3) uint8 from the depth map (H, W) mm on the image grid.
+
+    ``deformed_box``: (rows, cols) outside which ``depth_mm`` is zero, when the caller knows it (the shading
+    then searches only that box for the deformed pixels). ``out``: (H, W, 3) uint8 to write into and return.
+    """
+    h, w = depth_mm.shape
+    search = deformed_box if deformed_box is not None else (slice(0, h), slice(0, w))
+    deformed = depth_mm[search] > config.depth_floor_mm
     rows = np.flatnonzero(deformed.any(axis=1))
     win: tuple[slice, slice] | None = None
     if rows.size:
         cols = np.flatnonzero(deformed[rows[0] : rows[-1] + 1].any(axis=0))
-        h, w = depth_mm.shape
-        win = (slice(max(rows[0] - 2, 0), min(rows[-1] + 3, h)), slice(max(cols[0] - 2, 0), min(cols[-1] + 3, w)))
+        r0, c0 = search[0].start or 0, search[1].start or 0
+        win = (slice(max(r0 + rows[0] - 2, 0), min(r0 + rows[-1] + 3, h)),
+               slice(max(c0 + cols[0] - 2, 0), min(c0 + cols[-1] + 3, w)))
+    if out is None:
+        out = np.empty((h, w, 3), np.uint8)
+    elif out.shape != (h, w, 3) or out.dtype != np.uint8:
+        raise ValueError(f"out must be ({h}, {w}, 3) uint8 (got {out.shape} {out.dtype})")
     if noise_seed is None:
         # only the deformed window differs from the cached background
-        out = _background_uint8(profile).copy()
+        out[...] = _background_uint8(profile)
         if win is not None:
             _shade_window(depth_mm, win, profile, config.gain, _background_single(profile),
                           np.zeros((0, 0, 3), np.float32), out)
@@ -165,4 +181,6 @@ def render_shaded(
     if win is not None:
         img[win] += _shade(depth_mm[win], profile, config.gain)
     img += np.random.default_rng(noise_seed).normal(0.0, config.noise_std, img.shape)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    np.clip(np.rint(img), 0, 255, out=img)
+    out[...] = img
+    return out

@@ -72,6 +72,12 @@ class SensorProfile(BaseModel):
     grasp_threshold_mm: float = Field(gt=0, description="UniVTAC's closed-loop grasp depth delta_th, mm")
     optics: Optics
 
+    def __hash__(self) -> int:
+        # the tactile model's caches are keyed by profile, a dozen lookups a generated frame, and the default
+        # hash walks every field of the profile, its material and its optics each time; equal profiles have
+        # equal names, so the name alone is a valid hash
+        return hash(self.name)
+
     @model_validator(mode="before")
     @classmethod
     def _derived_fields_agree(cls, data: Any) -> Any:

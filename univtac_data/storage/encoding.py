@@ -40,7 +40,7 @@ SHARD_FRAMES = 128
 DENSE_CHUNK_FRAMES = 64
 SMALL_CHUNK_FRAMES = 4096
 ZSTD_LEVEL = 1
-FRAME_BLOCK_BYTES = 1 << 17  # Blosc block size of one-frame chunks (0 elsewhere: Blosc chooses)
+FRAME_BLOCK_BYTES = 1 << 19  # Blosc block size of one-frame chunks (0 elsewhere: Blosc chooses)
 #: The attribute of an array stored as a residual: the path of the array it is a residual of.
 RESIDUAL_ATTR = "residual_of"
 

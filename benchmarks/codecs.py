@@ -6,8 +6,8 @@ For each sensor (native resolution), all 14 indenters, both pads and both contac
 classes with their candidates:
 
 * images (I_marked and I_pure together): stored as they are (format 1.0) or as residuals (format 2.0:
-  I_marked - I_pure, I_pure - pure_ref_rgb, modulo 256), with Blosc's automatic block size or 128 KiB
-  blocks, Zstandard at levels 1 and 3, LZ4;
+  I_marked - I_pure, I_pure - pure_ref_rgb, modulo 256), with Blosc's automatic block size, 512 KiB blocks
+  (the format's choice) or 128 KiB blocks (its earlier one), Zstandard at levels 1 and 3, LZ4;
 * depth in micrometres (uint16): byte- or bit-shuffle, block size, Zstandard or LZ4;
 * the contact mask (uint8 0/1).
 
@@ -53,14 +53,17 @@ class Candidate:
         return f"{'residual' if self.residual else 'plain'} {self.cname}:{self.level}:{self.shuffle} blocks {block}"
 
 
+EARLIER_BLOCK_BYTES = 1 << 17  # the block size one-frame chunks had before 512 KiB (128 KiB)
 CANDIDATES = {
     "image": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
               Candidate("zstd", 1, "byte", 0, True), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES, True),
-              Candidate("zstd", 3, "byte", FRAME_BLOCK_BYTES, True), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES, True)],
+              Candidate("zstd", 3, "byte", FRAME_BLOCK_BYTES, True), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES, True),
+              Candidate("zstd", 1, "byte", EARLIER_BLOCK_BYTES, True)],
     "depth": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
-              Candidate("zstd", 1, "bit", FRAME_BLOCK_BYTES), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES)],
+              Candidate("zstd", 1, "bit", FRAME_BLOCK_BYTES), Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES),
+              Candidate("zstd", 1, "byte", EARLIER_BLOCK_BYTES)],
     "mask": [Candidate("zstd", 1, "byte", 0), Candidate("zstd", 1, "byte", FRAME_BLOCK_BYTES),
-             Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES)],
+             Candidate("lz4", 1, "byte", FRAME_BLOCK_BYTES), Candidate("zstd", 1, "byte", EARLIER_BLOCK_BYTES)],
 }
 FORMAT_CHOICE = {"image": CANDIDATES["image"][3], "depth": CANDIDATES["depth"][1], "mask": CANDIDATES["mask"][1]}
 

@@ -411,3 +411,39 @@ def test_compiled_convex_entries_match_the_array_code(seed: int) -> None:
             hit = np.isfinite(want)
             assert hit.any() or k % 4 == 0
             np.testing.assert_allclose(got[hit], want[hit], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_gap_field_cut_at_the_gel_keeps_every_overlap(seed: int) -> None:
+    """The geometric contact reads only the overlap, so the generator cuts its gap field at the gel surface
+    (cutoff 0): every negative gap is exactly what a field cut higher holds, and nothing else is near."""
+    rng = np.random.default_rng(10 + seed)
+    grid = sensor_grid(MINI, 1)
+    model, names = _random_scene(rng, grid)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    pad = pad_pose(model, data, "pad")
+    at_gel = gap_field(model, data, pad, names, grid, cutoff_mm=0.0)
+    higher = gap_field(model, data, pad, names, grid, cutoff_mm=CUTOFF_MM)
+    overlap = higher < 0.0
+    assert overlap.sum() > 100
+    np.testing.assert_array_equal(at_gel < 0.0, overlap)
+    np.testing.assert_array_equal(at_gel[overlap], higher[overlap])
+    assert np.all((at_gel[~overlap] == GAP_FAR_MM) | (at_gel[~overlap] <= gp.SLACK_MM))
+
+
+def test_convex_entries_in_a_window_touch_nothing_outside_it() -> None:
+    grid = sensor_grid(MINI, 1)
+    x, y = grid.x_mm, grid.y_mm
+    rot, pos, size = np.eye(3), np.array([0.5, -0.3, 3.0]), np.array([4.0, 3.0, 3.5])
+    win = (slice(60, 170), slice(90, 250))
+    for kind in (gp.ELLIPSOID, gp.BOX, gp.CYLINDER):
+        whole = np.full(grid.shape, GAP_FAR_MM)
+        gp.lower_to_entry(whole, x, y, kind, rot, pos, size)
+        part = np.full(grid.shape, GAP_FAR_MM)
+        gp.lower_to_entry(part, x, y, kind, rot, pos, size, window=win)
+        assert (whole[win] < GAP_FAR_MM).any()
+        np.testing.assert_array_equal(part[win], whole[win])
+        outside = np.ones(grid.shape, bool)
+        outside[win] = False
+        assert np.all(part[outside] == GAP_FAR_MM)

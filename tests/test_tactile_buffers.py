@@ -1,0 +1,121 @@
+"""Frames written in place: ``simulate_frame(out=PixelBuffers)`` and ``FrameStack`` rows, and the windows the
+geometric contact hands on (its box), which must change nothing but where the work is done."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from univtac_data.generators.frame_stack import PIXEL_FIELDS, FrameStack
+from univtac_data.generators.tactile import (
+    ContactConfig, PixelBuffers, demo_gap, render_shaded, sensor_grid, simulate_frame, solve_contact,
+)
+from univtac_data.generators.tactile.frame import _to_micrometres
+from univtac_data.generators.tactile.markers import draw_markers
+from univtac_data.schema.sensors import get_sensor
+
+GF225 = get_sensor("gf225")
+MINI = get_sensor("gelsight_mini")
+
+
+def garbage_buffers(h: int, w: int) -> PixelBuffers:
+    """Buffers filled with a value no output has everywhere, so a pixel left unwritten shows."""
+    return PixelBuffers(**{name: np.full(shape, 77 if dtype is not np.bool_ else True, dtype)
+                           for name, (shape, dtype) in PixelBuffers.layout(h, w).items()})
+
+
+@pytest.mark.parametrize("method", ["geometric", "elastic"])
+@pytest.mark.parametrize("shape", ["sphere", "cross"])
+@pytest.mark.parametrize("noise_seed", [None, 3])
+def test_a_frame_written_into_buffers_equals_a_new_frame(method: str, shape: str, noise_seed: int | None) -> None:
+    gap = demo_gap(MINI, shape)
+    kwargs = dict(method=method, tangential_mm=(0.08, -0.03), twist_rad=0.01, noise_seed=noise_seed)
+    fresh = simulate_frame(MINI, gap, **kwargs)  # type: ignore[arg-type]
+    buffers = garbage_buffers(MINI.image_height_px, MINI.image_width_px)
+    written = simulate_frame(MINI, gap, out=buffers, **kwargs)  # type: ignore[arg-type]
+    assert fresh.contact_mask.any()
+    for name in PIXEL_FIELDS:
+        assert getattr(written, name) is getattr(buffers, name), name   # the frame holds the buffers
+        np.testing.assert_array_equal(getattr(written, name), getattr(fresh, name), err_msg=name)
+    np.testing.assert_array_equal(written.markers_px, fresh.markers_px)
+    assert written.normal_force_n == fresh.normal_force_n
+
+
+def test_a_contactless_frame_clears_its_buffers() -> None:
+    gap = np.full((MINI.image_height_px, MINI.image_width_px), 5.0)
+    buffers = garbage_buffers(MINI.image_height_px, MINI.image_width_px)
+    frame = simulate_frame(MINI, gap, out=buffers)
+    assert not frame.depth_um.any() and not frame.contact_mask.any()
+    np.testing.assert_array_equal(frame.pure_rgb, simulate_frame(MINI, gap).pure_rgb)
+
+
+@pytest.mark.parametrize("field, shape, dtype", [("depth_um", (240, 320), np.float32),
+                                                 ("pure_rgb", (240, 320), np.uint8),
+                                                 ("contact_mask", (320, 240), np.bool_)])
+def test_buffers_of_the_wrong_shape_or_dtype_are_refused(field: str, shape: tuple[int, ...], dtype: type) -> None:
+    layout = PixelBuffers.layout(240, 320)
+    arrays = {name: np.zeros(s, d) for name, (s, d) in layout.items()}
+    arrays[field] = np.zeros(shape, dtype)
+    with pytest.raises(ValueError, match=f"PixelBuffers.{field} must be"):
+        simulate_frame(MINI, demo_gap(MINI, "sphere"), out=PixelBuffers(**arrays))
+
+
+def test_markers_are_never_drawn_onto_the_pure_image() -> None:
+    pure = np.zeros((240, 320, 3), np.uint8)
+    with pytest.raises(ValueError, match="share memory"):
+        draw_markers(pure, np.array([[10.0, 10.0]]), 3.0, (0, 0, 0), out=pure)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        draw_markers(pure, np.array([[10.0, 10.0]]), 3.0, (0, 0, 0), out=np.zeros((240, 320, 4), np.uint8)[..., :3])
+
+
+def test_frame_stack_rows_filled_in_place_survive_growth() -> None:
+    stack = FrameStack(capacity=2)
+    for k in range(5):   # grows twice
+        row = stack.next_row((3, 4), np.uint16)
+        row[...] = k
+        stack.commit()
+    stack.append(np.full((3, 4), 9, np.uint16))
+    frames = stack.array()
+    assert frames.shape == (6, 3, 4)
+    np.testing.assert_array_equal(frames[:, 0, 0], [0, 1, 2, 3, 4, 9])
+
+
+def test_frame_stack_refuses_a_commit_without_a_row_and_a_frame_of_another_shape() -> None:
+    stack = FrameStack(capacity=4)
+    with pytest.raises(ValueError, match="commit without a row"):
+        stack.commit()
+    stack.next_row((2, 2), np.uint8)
+    stack.commit()
+    with pytest.raises(ValueError, match="commit without a row"):
+        stack.commit()   # one commit per row
+    with pytest.raises(ValueError, match="in a stack of"):
+        stack.next_row((2, 3), np.uint8)
+    with pytest.raises(ValueError, match="in a stack of"):
+        stack.append(np.zeros((2, 2), np.uint16))
+    assert stack.frames == 1
+
+
+@pytest.mark.parametrize("shape", ["sphere", "cross", "two_spheres", "punch"])
+def test_the_geometric_box_holds_the_whole_deformation(shape: str) -> None:
+    """Outside the box the geometric contact reports, the depth and pressure are zero and nothing touches; the
+    shading and the micrometres computed inside it alone equal those of the whole image."""
+    grid = sensor_grid(GF225, 1)
+    result = solve_contact(demo_gap(GF225, shape), grid, GF225.material, ContactConfig(method="geometric"))
+    assert result.box is not None and result.contact_mask.any()
+    outside = np.ones(grid.shape, bool)
+    outside[result.box] = False
+    assert not result.depth_mm[outside].any() and not result.pressure_mpa[outside].any()
+    assert not result.contact_mask[outside].any()
+    assert result.normal_force_n == pytest.approx(result.pressure_mpa.sum() * grid.cell_area_mm2, rel=1e-12)
+    np.testing.assert_array_equal(render_shaded(result.depth_mm, GF225, deformed_box=result.box),
+                                  render_shaded(result.depth_mm, GF225))
+    np.testing.assert_array_equal(_to_micrometres(result.depth_mm, result.box), _to_micrometres(result.depth_mm))
+
+
+def test_no_geometric_contact_gives_an_empty_box() -> None:
+    grid = sensor_grid(GF225, 1)
+    result = solve_contact(np.full(grid.shape, 1.0), grid, GF225.material, ContactConfig(method="geometric"))
+    assert result.box is not None and result.depth_mm[result.box].size == 0
+    assert result.normal_force_n == 0.0 and not result.contact_mask.any()
+    np.testing.assert_array_equal(render_shaded(result.depth_mm, GF225, deformed_box=result.box),
+                                  render_shaded(result.depth_mm, GF225))

@@ -69,6 +69,21 @@ def test_calibrated_mode_in_the_entry_point(tmp_path: Path) -> None:
     assert not np.array_equal(corner, centre_ring)
 
 
+def test_calibrated_frame_written_into_buffers_equals_a_new_frame(tmp_path: Path) -> None:
+    from univtac_data.generators.tactile import PixelBuffers
+
+    write_calibration(tmp_path / "calib")
+    config = TactileConfig(optics="calibrated", calibration=load_taxim_calibration(tmp_path / "calib"))
+    gap = sphere_gap(MINI, 4.0, 0.5)
+    fresh = simulate_frame(MINI, gap, config=config, noise_seed=2)
+    buffers = PixelBuffers(**{name: np.full(shape, 77, dtype) for name, (shape, dtype)
+                              in PixelBuffers.layout(MINI.image_height_px, MINI.image_width_px).items()})
+    written = simulate_frame(MINI, gap, config=config, noise_seed=2, out=buffers)
+    assert written.pure_rgb is buffers.pure_rgb and written.marked_rgb is buffers.marked_rgb
+    for name in ("marked_rgb", "pure_rgb", "depth_um", "contact_mask"):
+        np.testing.assert_array_equal(getattr(written, name), getattr(fresh, name), err_msg=name)
+
+
 def test_missing_calibration_file_names_it(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="polycalib.npz"):
         load_taxim_calibration(tmp_path)

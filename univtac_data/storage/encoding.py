@@ -5,20 +5,21 @@ Why these choices (the spec's 'Encoding' section says the same):
 * images and depth are chunked one frame per chunk: a loader reads a single frame without decoding its
   neighbours (ManiSkill and LeRobot users trip over whole-trajectory chunks and video decoding);
 * Blosc with Zstandard is lossless, fast to decode and available to HDF5 (hdf5plugin) and Zarr alike; level 1
-  compresses residual images in half the time of level 3 for 6 to 11 % more bytes (benchmarks/codecs.py),
-  and generation writes every frame once. LZ4 writes faster and decodes in 45 to 70 % of the time but makes
-  residual images 1.5 to 2.1 times larger (spec/format.md, section 9);
+  compresses residual images in half the time of level 3 for 7 to 14 % more bytes (benchmarks/codecs.py),
+  and generation writes every frame once. LZ4 writes faster and decodes in 59 to 71 % of the time but makes
+  residual images 1.7 to 2.2 times larger (spec/format.md, section 9);
 * depth is integer micrometres, byte-shuffled like everything else: on generated frames (all 14 indenters,
-  both contact models) that is a quarter smaller, and faster to write and to read, than bit-shuffle
+  both contact models) that is about a third smaller, and faster to write and to read, than bit-shuffle
   (benchmarks/codecs.py);
 * tactile images are stored as residuals (format 2.0): ``marked_rgb`` minus ``pure_rgb`` is zero away from
   the markers, and ``pure_rgb`` minus the episode's ``pure_ref_rgb`` is zero away from the contact, so the
   compressor sees mostly zeros. On generated frames an image pair takes a third of its plain bytes with the
-  geometric contact model and three fifths with the elastic one, and less time to compress and to decompress
+  geometric contact model and two thirds with the elastic one, and less time to compress and to decompress
   (benchmarks/codecs.py); decoding adds one uint8 addition per image;
-* Blosc blocks of 128 KiB instead of Blosc's automatic size (tens of KiB at level 1): Zstandard finds more
-  of the long zero runs in larger blocks, and fewer blocks cost less (GF225 images 3 to 8 % smaller, 20 to
-  27 % faster to write); the block size is in each chunk's header, so readers need nothing new;
+* Blosc blocks of 512 KiB instead of Blosc's automatic size (tens of KiB at level 1): Zstandard finds more
+  of the long zero runs in larger blocks, and fewer blocks cost less (benchmarks/codecs.py compares
+  automatic, 128 KiB and 512 KiB blocks; spec/format.md, section 9, quotes it); the block size is in each
+  chunk's header, so readers need nothing new;
 * every chunk carries a checksum (HDF5 Fletcher-32, Zarr CRC32C) so flipped bytes are found on read;
 * Zarr shards group up to ``SHARD_FRAMES`` frames into one object: few files on object stores, while the
   chunk stays the unit of reading.

@@ -272,3 +272,22 @@ def test_compiled_block_means_and_bilinear_upsampling(shape: tuple[int, int]) ->
         np.testing.assert_allclose(upsample_linear(coarse, step, shape), expected_fine, rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="pad_mode"):
         downsample_mean(field, 2, "reflect")
+
+
+def test_compiled_bilinear_sampling_matches_scipy() -> None:
+    from scipy.ndimage import map_coordinates
+
+    from univtac_data.generators.tactile.markers import sample_bilinear
+
+    rng = np.random.default_rng(5)
+    x_axis, y_axis = 0.3 + 0.25 * np.arange(37), -1.0 + 0.2 * np.arange(23)
+    fields = rng.random((2, 23, 37)).astype(np.float32)
+    points = np.column_stack([rng.uniform(-1.0, 10.5, 200), rng.uniform(-2.0, 4.0, 200)])  # some outside the grid
+    got = sample_bilinear(fields, x_axis, y_axis, points)
+    assert got.shape == (2, 200) and got.dtype == np.float64
+    fx = np.clip((points[:, 0] - x_axis[0]) / 0.25, 0, 36)
+    fy = np.clip((points[:, 1] - y_axis[0]) / 0.2, 0, 22)
+    for k in range(2):
+        want = map_coordinates(fields[k].astype(np.float64), [fy, fx], order=1, mode="nearest")
+        np.testing.assert_allclose(got[k], want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(sample_bilinear(fields[0], x_axis, y_axis, points), got[0])

@@ -177,3 +177,23 @@ def test_compiled_marker_drawing_matches_the_rule_bit_for_bit() -> None:
         got = draw_markers(image, centres, radius, (20, 30, 40))
         np.testing.assert_array_equal(got, draw_markers_reference(image, centres, radius, (20, 30, 40)))
         assert not np.shares_memory(got, image)
+
+
+def test_markers_apart_are_drawn_by_the_rule_bit_for_bit() -> None:
+    """Markers no pixel sees twice (the usual gel) take the path without a coverage buffer: same pixels."""
+    from univtac_data.generators.tactile.markers import _discs_apart, draw_markers
+
+    rng = np.random.default_rng(5)
+    for radius in (2.0, 3.3, 6.0):
+        image = rng.integers(0, 256, (90, 120, 3), dtype=np.uint8)
+        grid = np.stack(np.meshgrid(np.arange(-5.0, 130.0, 2 * radius + 4.0), np.arange(-5.0, 100.0, 2 * radius + 4.0)),
+                        axis=-1).reshape(-1, 2)
+        centres = grid + rng.uniform(-1.0, 1.0, grid.shape)   # some off the image edges
+        assert _discs_apart(centres, np.float32(radius + 0.5))
+        got = draw_markers(image, centres, radius, (20, 30, 40))
+        np.testing.assert_array_equal(got, draw_markers_reference(image, centres, radius, (20, 30, 40)))
+        touching = centres.copy()
+        touching[1] = touching[0] + (2 * radius + 0.5, 0.0)   # within reach of each other: the other path
+        assert not _discs_apart(touching, np.float32(radius + 0.5))
+        np.testing.assert_array_equal(draw_markers(image, touching, radius, (20, 30, 40)),
+                                      draw_markers_reference(image, touching, radius, (20, 30, 40)))

@@ -118,7 +118,9 @@ def encoded_arrays(episode: Episode) -> Iterator[EncodedArray]:
             raise ValueError(f"episode {episode.meta.episode_id}: {path} is not a field of the format")
         array = episode.arrays[path]
         encoding = encoding_for(spec, array.shape)
-        data = array.astype(encoding.storage_dtype, copy=False)
+        # numpy's bool is one byte, 0 or 1: stored as uint8 it is a view, not a copy of every mask of the episode
+        data = (array.view(np.uint8) if array.dtype == np.bool_ and encoding.storage_dtype == "uint8"
+                else array.astype(encoding.storage_dtype, copy=False))
         base_path = residual_base_path(path, spec)
         base = episode.arrays.get(base_path) if base_path is not None else None
         if base is None or not data.size:

@@ -127,18 +127,27 @@ _RECENT_MATRICES: OrderedDict[tuple[object, ...], np.ndarray] = OrderedDict()
 def _dense_matrix(rows: np.ndarray, cols: np.ndarray, ks: KernelSet) -> np.ndarray:
     """(2 m, 2 m) float32 [[xx, xy], [xy, yy]] influence matrix of cells (``rows``, ``cols``) of ``ks``'s grid."""
     xx, xy, yy = ks.tangential_centred()
-    ny, nx = ks.shape
-    # entry (i, j) is the kernel at the offset of cell i from cell j: a difference of flat indices into the
-    # (2 ny - 1, 2 nx - 1) kernels, centre at (ny - 1, nx - 1)
-    flat = (rows * (2 * nx - 1) + cols).astype(np.int32)
-    offset = flat[:, None] - (flat - np.int32((ny - 1) * (2 * nx - 1) + nx - 1))[None, :]
+    matrix = _fill_dense_matrix(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64),
+                                np.ascontiguousarray(xx, dtype=np.float32), np.ascontiguousarray(xy, dtype=np.float32),
+                                np.ascontiguousarray(yy, dtype=np.float32), ks.shape[0], ks.shape[1])
+    matrix.flags.writeable = False    # shared between frames through the cache
+    return matrix
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_dense_matrix(rows: np.ndarray, cols: np.ndarray, xx: np.ndarray, xy: np.ndarray, yy: np.ndarray,
+                       ny: int, nx: int) -> np.ndarray:  # pragma: no cover (compiled)
+    # entry (i, j) is the kernel at the offset of cell i from cell j, the (2 ny - 1, 2 nx - 1) kernels centred
+    # at (ny - 1, nx - 1); the x-y coupling kernel is even in the offset, so its two blocks are equal.
+    # Compiled: a contact changes shape most frames, and array code spent more on index arrays than on this.
     m = rows.size
     matrix = np.empty((2 * m, 2 * m), np.float32)
-    matrix[:m, :m] = xx.ravel()[offset]
-    matrix[:m, m:] = xy.ravel()[offset]
-    matrix[m:, :m] = matrix[:m, m:]   # the x-y coupling kernel is even in the offset: the block is symmetric
-    matrix[m:, m:] = yy.ravel()[offset]
-    matrix.flags.writeable = False    # shared between frames through the cache
+    for i in range(m):
+        top, bottom = matrix[i], matrix[m + i]
+        for j in range(m):
+            r, c = rows[i] - rows[j] + ny - 1, cols[i] - cols[j] + nx - 1
+            top[j], top[m + j] = xx[r, c], xy[r, c]
+            bottom[j], bottom[m + j] = xy[r, c], yy[r, c]
     return matrix
 
 

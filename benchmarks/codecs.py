@@ -13,8 +13,10 @@ classes with their candidates:
 
 Chunks are one frame each with Fletcher-32, written by the package's own chunk writer into an in-memory HDF5
 file and read back frame by frame through h5py (a residual read adds its base back, as the reader does).
-CPU time of one process; per frame = both pads. Writes benchmarks/results/codecs.json; the spec's encoding
-section (spec/format.md, section 9) and univtac_data/storage/encoding.py quote it.
+CPU time of one process; per frame = both pads. Writes benchmarks/results/codecs.json and
+docs/figures/codecs.png (bytes against write time, per field class); the spec's encoding section
+(spec/format.md, section 9) and univtac_data/storage/encoding.py quote it. ``--chart-only`` redraws the
+figure from the JSON.
 """
 
 from __future__ import annotations
@@ -28,8 +30,12 @@ from dataclasses import dataclass
 
 import h5py
 import hdf5plugin
-import numpy as np
-from common import RESULTS, machine
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from common import FIGURES, RESULTS, machine  # noqa: E402
 
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.generators.indenters import INDENTER_NAMES
@@ -121,7 +127,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--sensors", default="gelsight_mini,gf225")
+    parser.add_argument("--chart-only", action="store_true", help="redraw the figure from the results JSON")
     args = parser.parse_args()
+    if args.chart_only:
+        chart(json.loads((RESULTS / "codecs.json").read_text()), FIGURES / "codecs.png")
+        return
     rows = []
     for sensor in args.sensors.split(","):
         for contact in ("geometric", "elastic"):
@@ -140,6 +150,36 @@ def main() -> None:
               "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "codecs.json").write_text(json.dumps(result, indent=2) + "\n")
+    chart(result, FIGURES / "codecs.png")
+
+
+def chart(result: dict, path: object) -> None:  # type: ignore[type-arg]
+    """One panel per sensor and contact model: KiB a frame against write ms a frame, a marker per candidate
+    (colour: field class), the format's choices ringed."""
+    panels = sorted({(r["sensor"], r["contact"]) for r in result["rows"]})
+    colours = {"image": "tab:blue", "depth": "tab:orange", "mask": "tab:green"}
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 4.2), squeeze=False)
+    for ax, (sensor, contact) in zip(axes[0], panels):
+        for r in result["rows"]:
+            if (r["sensor"], r["contact"]) != (sensor, contact):
+                continue
+            ax.scatter(r["write_ms_per_frame"], r["kib_per_frame"], color=colours[r["field"]], s=18)
+            if r["format_choice"]:
+                ax.scatter(r["write_ms_per_frame"], r["kib_per_frame"], facecolors="none", edgecolors="k", s=90)
+            ax.annotate(r["codec"].replace(" blocks ", " "), (r["write_ms_per_frame"], r["kib_per_frame"]),
+                        fontsize=5, xytext=(3, 2), textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(f"{sensor}, {contact}", fontsize=9)
+        ax.set_xlabel("write, ms a frame (both pads)")
+    axes[0][0].set_ylabel("KiB a frame on disk")
+    for field_class, colour in colours.items():
+        axes[0][0].scatter([], [], color=colour, label=field_class)
+    axes[0][0].scatter([], [], facecolors="none", edgecolors="k", label="the format's choice")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f"Tactile field codecs, one core ({result['machine']['cpu']})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 
-#: The per-pixel arrays of a tactile frame that an episode records, by their name under ``tactile/{pad}/``.
-PIXEL_FIELDS = ("marked_rgb", "pure_rgb", "depth_um", "contact_mask")
+from univtac_data.generators.tactile import PixelBuffers
+
+#: The per-pixel arrays of a tactile frame that an episode records, by their name under ``tactile/{pad}/``:
+#: those ``simulate_frame`` writes into its ``PixelBuffers``.
+PIXEL_FIELDS = tuple(f.name for f in fields(PixelBuffers))
 
 
 class FrameStack:

@@ -229,8 +229,8 @@ class TactileFrameDataset(torch.utils.data.Dataset[Sample]):
         compact, channels_last = self.config.compact, self.config.channels_last
         decoded: dict[str, tuple[str, torch.Tensor]] = {}   # field key -> (batch key, tensor)
         # I_marked is stored as a residual of I_pure: decode I_pure first and add its frames to the marked
-        # residuals rather than decode each I_pure frame twice (0.67 -> 0.39 CPU-ms a compact sample, one
-        # thread; benchmarks/loader_throughput.py)
+        # residuals rather than decode each I_pure frame twice (about 40 % of a compact sample's CPU in one
+        # thread when measured; benchmarks/loader_throughput.py)
         fields = list(self.config.fields)
         # sources in field order: a damaged file fails on the same array as a single sample's read
         field_sources = {key: [(reader.frame_source(ref, f"tactile/{pad}/{FRAME_FIELDS[key]}"), frame)

@@ -171,10 +171,8 @@ def _nonzero_box(field: np.ndarray, align: int = 1) -> tuple[slice, slice] | Non
     if rows.size == 0:
         return None
     cols = np.flatnonzero(nonzero[rows[0] : rows[-1] + 1].any(axis=0))
-    h, w = field.shape
-    r0, c0 = rows[0] // align * align, cols[0] // align * align
-    r1, c1 = min(-(-(rows[-1] + 1) // align) * align, h), min(-(-(cols[-1] + 1) // align) * align, w)
-    return slice(int(r0), int(r1)), slice(int(c0), int(c1))
+    return _aligned((slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)), align,
+                    *field.shape)
 
 
 def _block_mean_of_load(pressure: np.ndarray, factor: int, box: tuple[slice, slice] | None = None) -> np.ndarray:

@@ -40,6 +40,7 @@ from common import FIGURES, RESULTS, machine  # noqa: E402
 from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
 from univtac_data.generators.indenters import INDENTER_NAMES  # noqa: E402
+from univtac_data.generators.runner import compression_level_for  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402
 from univtac_data.storage import Location, write_episode_file  # noqa: E402
 
@@ -69,7 +70,7 @@ def one(sensor: str, method: str, shape: str, frames: int, out: str, index: int,
     cpu0, wall0 = time.process_time(), time.perf_counter()
     episode = run_indenter_episode(spec)
     cpu1 = time.process_time()
-    written = write_episode_file(Location.parse(out), "hdf5", episode)
+    written = write_episode_file(Location.parse(out), "hdf5", episode, compression_level=compression_level_for(spec))
     cpu2, wall2 = time.process_time(), time.perf_counter()
     return {"frames": frames, "simulate_cpu_s": cpu1 - cpu0, "write_cpu_s": cpu2 - cpu1, "wall_s": wall2 - wall0,
             "bytes": written.row.bytes, "max_normal_force_n": episode.meta.safety.max_normal_force_n}

@@ -23,6 +23,7 @@ from tqdm import tqdm
 from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
+from univtac_data.storage.encoding import ZSTD_LEVELS
 from univtac_data.storage.errors import DatasetError
 
 
@@ -42,11 +43,25 @@ class RunSummary:
         return self.frames / self.elapsed_s if self.elapsed_s > 0 else 0.0
 
 
-def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str) -> WrittenEpisode:
+# Blosc level per contact model when a run does not choose one. An elastic frame costs about three geometric
+# ones to simulate, so level 3's extra compression is a small share of it, and its wide, low residual images
+# are where the higher level pays (about 15 % fewer bytes); a geometric frame is small at level 1 already,
+# and compression is a fifth of its time.
+AUTO_COMPRESSION_LEVEL = {"geometric": 1, "elastic": 3}
+
+
+def compression_level_for(spec: IndenterEpisodeSpec, level: int | None = None) -> int:
+    """The Blosc level ``spec``'s episode is written at: ``level``, or by its contact model when None."""
+    return AUTO_COMPRESSION_LEVEL[spec.contact_method] if level is None else level
+
+
+def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str,
+                             compression_level: int | None = None) -> WrittenEpisode:
     """Simulate one episode and write its file (runs in a worker, which keeps its freed memory)."""
     keep_freed_memory()
     episode = run_indenter_episode(spec)
-    return write_episode_file(Location.parse(url), storage, episode)
+    return write_episode_file(Location.parse(url), storage, episode,
+                              compression_level=compression_level_for(spec, compression_level))
 
 
 def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]) -> None:
@@ -67,12 +82,12 @@ def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]
                                f"this run asks for {key}={wanted!r}; rerun with the same options or choose a new --out")
 
 
-def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int) \
+def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, level: int | None) \
         -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
     if workers <= 1:
         for spec in specs:
             try:
-                yield spec, produce_indenter_episode(spec, url, storage)
+                yield spec, produce_indenter_episode(spec, url, storage, level)
             except Exception as error:  # one bad episode must not end the run; it is reported
                 yield spec, error
         return
@@ -84,7 +99,7 @@ def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: in
             while queue or pending:
                 while queue and len(pending) < 2 * workers:
                     spec = queue.pop()
-                    pending[pool.submit(produce_indenter_episode, spec, url, storage)] = spec
+                    pending[pool.submit(produce_indenter_episode, spec, url, storage, level)] = spec
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
                     spec = pending.pop(future)
@@ -96,8 +111,8 @@ def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: in
             raise
 
 
-def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, address: str | None) \
-        -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
+def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, address: str | None,
+         level: int | None) -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
     try:
         import ray
     except ImportError:
@@ -108,7 +123,7 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
         ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, **kwargs)
     try:
         remote = ray.remote(num_cpus=1)(produce_indenter_episode)
-        futures = {remote.remote(spec, url, storage): spec for spec in specs}
+        futures = {remote.remote(spec, url, storage, level): spec for spec in specs}
         while futures:
             done, _ = ray.wait(list(futures), num_returns=1)
             spec = futures.pop(done[0])
@@ -122,8 +137,13 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
 
 
 def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hdf5", workers: int = 1,
-               executor: str = "local", ray_address: str | None = None, progress: bool = True) -> RunSummary:
-    """Make every episode of ``specs`` that the dataset at ``url`` lacks."""
+               executor: str = "local", ray_address: str | None = None, progress: bool = True,
+               compression_level: int | None = None) -> RunSummary:
+    """Make every episode of ``specs`` that the dataset at ``url`` lacks. ``compression_level``: Blosc level
+    1 to 9 of the episode files (None: ``AUTO_COMPRESSION_LEVEL`` by contact model)."""
+    if compression_level is not None and compression_level not in ZSTD_LEVELS:
+        raise DatasetError(f"--compression-level must be {ZSTD_LEVELS.start} to {ZSTD_LEVELS.stop - 1} "
+                           f"(got {compression_level})")
     sensors = sorted({s.sensor for s in specs})
     writer = DatasetWriter.open(url, storage=storage, sensors=sensors)
     _check_same_settings(writer, specs)
@@ -134,8 +154,8 @@ def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hd
     start = time.perf_counter()
     bar = tqdm(total=len(specs), initial=summary.skipped_existing, unit="episode", desc="generate",
                disable=not progress, file=sys.stderr, dynamic_ncols=True)
-    stream = (_ray(todo, url, storage, workers, ray_address) if executor == "ray"
-              else _local(todo, url, storage, workers))
+    stream = (_ray(todo, url, storage, workers, ray_address, compression_level) if executor == "ray"
+              else _local(todo, url, storage, workers, compression_level))
     try:
         for spec, result in stream:
             if isinstance(result, BaseException):

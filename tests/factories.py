@@ -6,9 +6,11 @@ real scenes.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 import torch
 
@@ -135,3 +137,34 @@ def assert_same(a: Any, b: Any, *, channels_last: bool = False, key: str = "") -
             assert_same(x, y, channels_last=channels_last, key=key)
     else:
         assert a == b
+
+
+def stored_blosc_levels(episode_path) -> set[int]:
+    """The Blosc levels an episode's compressed arrays were written at, as the file records them."""
+    if str(episode_path).endswith(".h5"):
+        levels: set[int] = set()
+
+        def visit(_name: str, node: object) -> None:
+            if isinstance(node, h5py.Dataset):
+                plist = node.id.get_create_plist()
+                for i in range(plist.get_nfilters()):
+                    code, _flags, values, _name = plist.get_filter(i)
+                    if code == 32001:  # Blosc; its level is cd_values[4]
+                        levels.add(int(values[4]))
+
+        with h5py.File(episode_path, "r") as f:
+            f.visititems(visit)
+        return levels
+
+    def walk(node: object):
+        if isinstance(node, dict):
+            if "clevel" in node:
+                yield int(node["clevel"])
+            for value in node.values():
+                yield from walk(value)
+        elif isinstance(node, list):
+            for value in node:
+                yield from walk(value)
+
+    return {level for meta in episode_path.rglob("zarr.json") for level in walk(json.loads(meta.read_text()))}
+

@@ -13,6 +13,7 @@ import h5py
 import mujoco
 import numpy as np
 import pytest
+from factories import stored_blosc_levels
 
 from univtac_data import Dataset, check_episode, content_hash, get_sensor
 from univtac_data.generators.allocator import keep_freed_memory
@@ -158,9 +159,20 @@ def test_bad_options_and_mismatched_resume_are_refused(tmp_path):
     first = cli("generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "cone", "--episodes-per-shape",
                 "1", "--frames-per-episode", "5", "--workers", "1")
     assert first.returncode == 0, first.stderr
+    (written,) = (tmp_path / "d" / "episodes").glob("*.h5")
+    assert stored_blosc_levels(written) == {1}  # geometric episodes: the fastest level
     again = cli("generate", "indenters", "--out", str(tmp_path / "d"), "--shapes", "cone", "--episodes-per-shape",
                 "1", "--frames-per-episode", "7", "--workers", "1")
     assert again.returncode == 2 and "frames=5" in again.stderr and "frames=7" in again.stderr
+    for level in ("0", "10"):
+        refused = cli("generate", "indenters", "--out", str(tmp_path / "z"), "--compression-level", level)
+        assert refused.returncode == 2 and f"--compression-level must be 1 to 9 (got {level})" in refused.stderr
+        assert "Traceback" not in refused.stderr and not (tmp_path / "z").exists()
+    chosen = cli("generate", "indenters", "--out", str(tmp_path / "c"), "--shapes", "cone", "--episodes-per-shape",
+                 "1", "--frames-per-episode", "3", "--workers", "1", "--compression-level", "6")
+    assert chosen.returncode == 0, chosen.stderr
+    (written,) = (tmp_path / "c" / "episodes").glob("*.h5")
+    assert stored_blosc_levels(written) == {6}
 
 
 def test_generated_episodes_pass_every_validator_rule(tmp_path):
@@ -192,6 +204,8 @@ def test_gel_layer_option_is_recorded_checked_on_resume_and_elastic_only(tmp_pat
     assert first.returncode == 0, first.stderr
     episode = Dataset.open(tmp_path / "d").load_episode("gelsight_mini-sphere-0000")
     assert episode.meta.generator.settings["gel"] == "layer"
+    (written,) = (tmp_path / "d" / "episodes").glob("*.h5")
+    assert stored_blosc_levels(written) == {3}  # elastic episodes: the simulation sets the pace, not level 3
     assert episode.meta.safety.max_indentation_mm > 0.1   # pressed, not just approached
     validated = cli("validate", str(tmp_path / "d"))   # every rule holds for layer episodes too
     assert validated.returncode == 0, validated.stdout + validated.stderr

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from factories import make_dataset, make_episode
+from factories import make_dataset, make_episode, stored_blosc_levels
 
 from univtac_data import Dataset, DatasetWriter, EpisodeError, content_hash
 from univtac_data.storage import EpisodeExistsError, write_episode_file
@@ -186,8 +186,8 @@ def test_depth_and_masks_written_bit_shuffled_read_the_same(tmp_path, storage, m
     episode = make_episode("gelsight_mini", 4, "ep0", seed=5)
     DatasetWriter.open(tmp_path / "byte", storage=storage).add(episode)
 
-    def bit_shuffled(spec, shape):  # the first release's choice for the "depth" codec class
-        enc = current(spec, shape)
+    def bit_shuffled(spec, shape, level=encoding.ZSTD_LEVEL):  # the first release's choice for "depth"
+        enc = current(spec, shape, level)
         return dataclasses.replace(enc, shuffle="bit") if spec.codec == "depth" else enc
 
     monkeypatch.setattr(encoding, "encoding_for", bit_shuffled)
@@ -205,3 +205,19 @@ def test_depth_and_masks_written_bit_shuffled_read_the_same(tmp_path, storage, m
     new_ds = TactileFrameDataset(tmp_path / "byte", compact=True)
     batch_old, batch_new = old_ds.read_batch(range(len(old_ds))), new_ds.read_batch(range(len(new_ds)))
     assert np.array_equal(batch_old["depth_um"].numpy(), batch_new["depth_um"].numpy())
+
+
+def test_compression_level_is_the_writers_choice_and_reads_the_same(tmp_path, storage):
+    episode = make_episode("gelsight_mini", 4, "e", seed=5)
+    for level in (1, 9):
+        writer = DatasetWriter.open(tmp_path / f"l{level}", storage=storage)
+        written = write_episode_file(writer.loc, storage, episode, compression_level=level)
+        writer.commit([written])
+        assert stored_blosc_levels(tmp_path / f"l{level}" / written.row.path) == {level}
+        dataset = Dataset.open(tmp_path / f"l{level}")
+        assert dataset.verify_checksums() == []
+        assert content_hash(dataset.load_episode("e")) == content_hash(episode)
+    for level in (0, 10):
+        with pytest.raises(ValueError, match=f"compression level must be 1 to 9 \\(got {level}\\)"):
+            write_episode_file(Location.parse(tmp_path / "bad"), storage, episode, compression_level=level)
+    assert not (tmp_path / "bad").exists()

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ValidationError
 from univtac_data.episode import Episode
 from univtac_data.schema.fields import field_for_path
 from univtac_data.schema.models import EpisodeMeta
+from univtac_data.storage.encoding import ZSTD_LEVEL
 from univtac_data.storage.errors import CorruptFileError
 from univtac_data.storage.fs import Location
 from univtac_data.version import check_readable
@@ -220,7 +221,8 @@ class EpisodeStore(ABC):
     suffix: str
 
     @abstractmethod
-    def write(self, episode: Episode, loc: Location, relpath: str) -> None: ...
+    def write(self, episode: Episode, loc: Location, relpath: str, level: int = ZSTD_LEVEL) -> None:
+        """Write ``episode`` at ``relpath``, compressed at Blosc ``level``."""
 
     @abstractmethod
     def open(self, loc: Location, relpath: str) -> EpisodeHandle: ...

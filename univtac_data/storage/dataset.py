@@ -28,6 +28,7 @@ from univtac_data.episode import Episode, check_episode
 from univtac_data.schema.models import DatasetInfo, IndexRow, Manifest, ManifestEntry
 from univtac_data.schema.sensors import SensorProfile, get_sensor
 from univtac_data.storage.backend import EpisodeHandle, EpisodeStore, parse_versioned
+from univtac_data.storage.encoding import ZSTD_LEVEL, ZSTD_LEVELS
 from univtac_data.storage.errors import (
     CorruptFileError,
     DatasetError,
@@ -123,12 +124,17 @@ def _publish(loc: Location, tmp_rel: str, final_rel: str) -> None:
     loc.remove(tmp_rel)
 
 
-def write_episode_file(loc: Location, storage: str, episode: Episode) -> WrittenEpisode:
+def write_episode_file(loc: Location, storage: str, episode: Episode, *,
+                       compression_level: int = ZSTD_LEVEL) -> WrittenEpisode:
     """Check ``episode`` against the spec, write it atomically, and return its index row and checksums.
+    ``compression_level``: Blosc level 1 (fastest) to 9 (smallest); readers need not know it.
 
     Safe to call from worker processes in parallel (distinct episode ids); the caller commits the result
     with ``DatasetWriter.commit``.
     """
+    if compression_level not in ZSTD_LEVELS:
+        raise ValueError(f"compression level must be {ZSTD_LEVELS.start} to {ZSTD_LEVELS.stop - 1} "
+                         f"(got {compression_level})")
     store = get_store(storage)
     episode = episode.in_current_format()  # writers write the version they implement (spec, section 2)
     check_episode(episode, get_sensor(episode.meta.sensor))
@@ -139,7 +145,7 @@ def write_episode_file(loc: Location, storage: str, episode: Episode) -> Written
     loc.makedirs(EPISODES_DIR)
     tmp_rel = f"{EPISODES_DIR}/{TMP_PREFIX}{episode_id}-{uuid.uuid4().hex[:8]}{store.suffix}"
     try:
-        store.write(episode, loc, tmp_rel)
+        store.write(episode, loc, tmp_rel, compression_level)
         files = _hash_files(loc, tmp_rel, final_rel, episode_id)
         _publish(loc, tmp_rel, final_rel)
     except BaseException:

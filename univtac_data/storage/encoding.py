@@ -7,7 +7,9 @@ Why these choices (the spec's 'Encoding' section says the same):
 * Blosc with Zstandard is lossless, fast to decode and available to HDF5 (hdf5plugin) and Zarr alike; level 1
   compresses residual images in half the time of level 3 for 7 to 14 % more bytes (benchmarks/codecs.py),
   and generation writes every frame once. LZ4 writes faster and decodes in 59 to 71 % of the time but makes
-  residual images 1.7 to 2.2 times larger (spec/format.md, section 9);
+  residual images 1.7 to 2.2 times larger (spec/format.md, section 9). Writers take another level per episode
+  (``write_episode_file(..., compression_level=)``): the generator writes elastic episodes at level 3, where
+  the simulation, not the compression, sets the pace; decoding does not depend on the level;
 * depth is integer micrometres, byte-shuffled like everything else: on generated frames (all 14 indenters,
   both contact models) that is about a third smaller, and faster to write and to read, than bit-shuffle
   (benchmarks/codecs.py);
@@ -40,7 +42,8 @@ from univtac_data.schema.fields import FieldSpec, field_for_path
 SHARD_FRAMES = 128
 DENSE_CHUNK_FRAMES = 64
 SMALL_CHUNK_FRAMES = 4096
-ZSTD_LEVEL = 1
+ZSTD_LEVEL = 1  # Blosc compression level writers use unless told otherwise
+ZSTD_LEVELS = range(1, 10)  # the levels a writer accepts (Blosc's 1..9; 0 would store uncompressed)
 FRAME_BLOCK_BYTES = 1 << 19  # Blosc block size of one-frame chunks (0 elsewhere: Blosc chooses)
 #: The attribute of an array stored as a residual: the path of the array it is a residual of.
 RESIDUAL_ATTR = "residual_of"
@@ -60,11 +63,11 @@ class Encoding:
     frame_chunks: bool = False  # per-frame array chunked one frame per chunk (images, depth, masks)
 
 
-def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
-    """The encoding of an array of ``shape`` for field ``spec``."""
+def encoding_for(spec: FieldSpec, shape: tuple[int, ...], level: int = ZSTD_LEVEL) -> Encoding:
+    """The encoding of an array of ``shape`` for field ``spec``, compressed at Blosc ``level``."""
     storage_dtype = "uint8" if spec.dtype == "bool" else spec.dtype
     if spec.sampling == "per_episode" or not shape:
-        return Encoding(tuple(max(1, s) for s in shape), None, "zstd", ZSTD_LEVEL, "byte", storage_dtype)
+        return Encoding(tuple(max(1, s) for s in shape), None, "zstd", level, "byte", storage_dtype)
     frames, rest = shape[0], tuple(shape[1:])
     if spec.codec in ("image", "depth"):
         chunk_t = 1
@@ -78,7 +81,7 @@ def encoding_for(spec: FieldSpec, shape: tuple[int, ...]) -> Encoding:
     rest_chunks = tuple(max(1, s) for s in rest)
     shards = None if shard_t is None or shard_t == chunk_t else (shard_t, *rest_chunks)
     frame_chunks = spec.codec in ("image", "depth")
-    return Encoding((chunk_t, *rest_chunks), shards, "zstd", ZSTD_LEVEL, "byte", storage_dtype,
+    return Encoding((chunk_t, *rest_chunks), shards, "zstd", level, "byte", storage_dtype,
                     FRAME_BLOCK_BYTES if frame_chunks else 0, frame_chunks)
 
 
@@ -109,15 +112,15 @@ def residual_base_path(path: str, spec: FieldSpec) -> str | None:
     return path.rsplit("/", 1)[0] + "/" + spec.residual_of.rsplit("/", 1)[1]
 
 
-def encoded_arrays(episode: Episode) -> Iterator[EncodedArray]:
-    """Each array of a checked episode, in path order, in its storage dtype, with its encoding; image fields
-    whose residual base the episode holds are marked as residuals of it."""
+def encoded_arrays(episode: Episode, level: int = ZSTD_LEVEL) -> Iterator[EncodedArray]:
+    """Each array of a checked episode, in path order, in its storage dtype, with its encoding at Blosc
+    ``level``; image fields whose residual base the episode holds are marked as residuals of it."""
     for path in sorted(episode.arrays):
         spec = field_for_path(path)
         if spec is None:
             raise ValueError(f"episode {episode.meta.episode_id}: {path} is not a field of the format")
         array = episode.arrays[path]
-        encoding = encoding_for(spec, array.shape)
+        encoding = encoding_for(spec, array.shape, level)
         # numpy's bool is one byte, 0 or 1: stored as uint8 it is a view, not a copy of every mask of the episode
         data = (array.view(np.uint8) if array.dtype == np.bool_ and encoding.storage_dtype == "uint8"
                 else array.astype(encoding.storage_dtype, copy=False))

@@ -13,7 +13,7 @@ from numcodecs.fletcher32 import Fletcher32
 
 from univtac_data.episode import Episode, meta_json
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import RESIDUAL_ATTR, EncodedArray, Encoding, encoded_arrays
+from univtac_data.storage.encoding import RESIDUAL_ATTR, ZSTD_LEVEL, EncodedArray, Encoding, encoded_arrays
 from univtac_data.storage.errors import CorruptFileError, DatasetError
 from univtac_data.storage.fs import Location, fsync_tree
 
@@ -117,7 +117,7 @@ class HDF5Store(EpisodeStore):
     storage = "hdf5"
     suffix = ".h5"
 
-    def write(self, episode: Episode, loc: Location, relpath: str) -> None:
+    def write(self, episode: Episode, loc: Location, relpath: str, level: int = ZSTD_LEVEL) -> None:
         if not loc.is_local:
             raise DatasetError(f"{loc.url}: HDF5 datasets need a local path; use --format zarr for URLs")
         path = os.path.join(loc.root, relpath)
@@ -128,7 +128,7 @@ class HDF5Store(EpisodeStore):
             with h5py.File(path, "w", libver=("v110", "v110"), track_order=True) as handle:
                 handle.attrs[VERSION_ATTR] = episode.meta.format_version
                 handle.attrs[META_ATTR] = meta_json(episode.meta)
-                for item in encoded_arrays(episode):
+                for item in encoded_arrays(episode, level):
                     data, enc = item.data, item.encoding
                     per_frame_chunks = bool(data.size) and enc.frame_chunks
                     dataset = handle.create_dataset(

@@ -11,7 +11,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec
 
 from univtac_data.episode import Episode
 from univtac_data.storage.backend import META_ATTR, VERSION_ATTR, EpisodeHandle, EpisodeStore, parse_episode_meta
-from univtac_data.storage.encoding import RESIDUAL_ATTR, encoded_arrays
+from univtac_data.storage.encoding import RESIDUAL_ATTR, ZSTD_LEVEL, encoded_arrays
 from univtac_data.storage.errors import CorruptFileError
 from univtac_data.storage.fs import Location, fsync_tree
 
@@ -75,12 +75,12 @@ class ZarrStore(EpisodeStore):
     storage = "zarr"
     suffix = ".zarr"
 
-    def write(self, episode: Episode, loc: Location, relpath: str) -> None:
+    def write(self, episode: Episode, loc: Location, relpath: str, level: int = ZSTD_LEVEL) -> None:
         group = zarr.open_group(_store(loc, relpath, "w"), mode="w", zarr_format=3)
         # The metadata is JSON already; store it as an object so zarr tools show it readably.
         group.attrs.update({VERSION_ATTR: episode.meta.format_version,
                             META_ATTR: json.loads(episode.meta.model_dump_json())})
-        for item in encoded_arrays(episode):
+        for item in encoded_arrays(episode, level):
             data, enc = item.data, item.encoding
             shuffle: Literal["bitshuffle", "shuffle"] = "bitshuffle" if enc.shuffle == "bit" else "shuffle"
             target = group.create_array(

@@ -291,3 +291,30 @@ def test_compiled_bilinear_sampling_matches_scipy() -> None:
         want = map_coordinates(fields[k].astype(np.float64), [fy, fx], order=1, mode="nearest")
         np.testing.assert_allclose(got[k], want, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(sample_bilinear(fields[0], x_axis, y_axis, points), got[0])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("rows", [None, (3, 9), (0, 17)])
+def test_padded_transforms_by_rows_equal_rfft2_and_irfft2(dtype: type, rows: tuple[int, int] | None) -> None:
+    import scipy.fft as sfft
+
+    from univtac_data.generators.tactile.kernels import convolve, padded_inverse, padded_spectrum
+
+    shape, pad = (17, 12), (34, 24)
+    fields = np.random.default_rng(4).normal(size=(3, *shape)).astype(dtype)
+    if rows is not None:  # zero outside the rows the caller names
+        fields[:, : rows[0]] = 0.0
+        fields[:, rows[1] :] = 0.0
+    expected = sfft.rfft2(fields, s=pad, axes=(-2, -1))
+    spectra = padded_spectrum(fields, pad, rows)
+    assert spectra.dtype == expected.dtype
+    rtol = 1e-5 if dtype == np.float32 else 1e-12
+    np.testing.assert_allclose(spectra, expected, rtol=rtol, atol=rtol * np.abs(expected).max())
+    back = padded_inverse(expected, pad, shape)
+    np.testing.assert_allclose(back, sfft.irfft2(expected, s=pad, axes=(-2, -1))[:, : shape[0], : shape[1]],
+                               rtol=rtol, atol=rtol * np.abs(fields).max())
+    np.testing.assert_allclose(back, fields, rtol=rtol, atol=rtol * np.abs(fields).max())
+    kernel = sfft.rfft2(np.random.default_rng(5).normal(size=pad).astype(dtype))
+    linear = sfft.irfft2(sfft.rfft2(fields[0], s=pad) * kernel, s=pad)[: shape[0], : shape[1]]
+    np.testing.assert_allclose(convolve(fields[0], kernel, pad, rows), linear, rtol=rtol,
+                               atol=rtol * np.abs(linear).max())

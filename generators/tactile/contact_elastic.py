@@ -143,7 +143,8 @@ def solve_elastic(gap_mm: np.ndarray, grid: SensorGrid, material: Material, conf
     pressure[window] = p_win
     full = kernel_set(grid.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
     # single precision, as in the window: the depth is stored in whole micrometres, float32 resolves 1e-6 mm
-    depth = np.maximum(convolve(pressure.astype(np.float32), full.zz_single, full.pad_shape), 0.0).astype(np.float64)
+    depth = np.maximum(convolve(pressure.astype(np.float32), full.zz_single, full.pad_shape,
+                                (window[0].start, window[0].stop)), 0.0).astype(np.float64)
     # in contact the surface follows the object exactly (the CG leaves a residual of order tol)
     mask = pressure > 0.0
     depth[mask] = -gap_mm[mask]

@@ -42,7 +42,7 @@ import scipy.fft as sfft
 
 from univtac_data.schema.sensors import Material
 
-from .kernels import KernelSet, kernel_set
+from .kernels import KernelSet, kernel_set, padded_inverse, padded_spectrum
 
 __all__ = ["ContactState", "ShearResult", "solve_shear"]
 
@@ -170,9 +170,9 @@ class _WindowCells:
         field[:, self.rows, self.cols] = q
         # both components in one transform each way: on these small windows the per-call overhead of the
         # FFT, not its arithmetic, is what the solve pays for
-        fx, fy = sfft.rfft2(field, s=self.pad, axes=(-2, -1), workers=1)
+        fx, fy = padded_spectrum(field, self.pad)
         spectrum = np.stack([self.xx * fx + self.xy * fy, self.xy * fx + self.yy * fy])
-        return sfft.irfft2(spectrum, s=self.pad, axes=(-2, -1), workers=1)[:, self.rows, self.cols]
+        return padded_inverse(spectrum, self.pad, self.shape)[:, self.rows, self.cols]
 
 
 CellOperator = Callable[[np.ndarray], np.ndarray]
@@ -359,13 +359,13 @@ def solve_shear(
     traction[:, rows, cols] = q
     ks = kernel_set(shape, dx_mm, dy_mm, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
     # the radial term of p and the Cerruti term of q in one forward and one inverse transform (single precision:
-    # the displacement moves markers stored in float32 px)
+    # the displacement moves markers stored in float32 px); the loads are zero off the contact's rows
     loads = np.empty((3, *shape), np.float32)
     loads[0], loads[1:] = pressure_mpa, traction
-    spectra = sfft.rfft2(loads, s=ks.pad_shape, axes=(-2, -1), workers=1)
+    spectra = padded_spectrum(loads, ks.pad_shape, (int(rows.min()), int(rows.max()) + 1))
     kernel = ks.in_plane_single()
     in_plane = kernel[:, 0] * spectra[0] + kernel[:, 1] * spectra[1] + kernel[:, 2] * spectra[2]
-    displacement = sfft.irfft2(in_plane, s=ks.pad_shape, axes=(-2, -1), workers=1)[:, : shape[0], : shape[1]]
+    displacement = padded_inverse(in_plane, ks.pad_shape, shape)
     new_state = ContactState(
         in_contact=True, reference_mm=(float(reference[0]), float(reference[1])),
         reference_twist_rad=float(twist_ref), slip_mm=float(slip),

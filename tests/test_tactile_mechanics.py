@@ -318,3 +318,37 @@ def test_padded_transforms_by_rows_equal_rfft2_and_irfft2(dtype: type, rows: tup
     linear = sfft.irfft2(sfft.rfft2(fields[0], s=pad) * kernel, s=pad)[: shape[0], : shape[1]]
     np.testing.assert_allclose(convolve(fields[0], kernel, pad, rows), linear, rtol=rtol,
                                atol=rtol * np.abs(linear).max())
+
+
+@pytest.mark.parametrize("slide_mm, twist_rad", [((0.01, 0.0), 0.0), ((0.25, 0.1), 0.0), ((0.25, 0.1), 0.02),
+                                                 ((0.0, 0.0), 0.03), ((5.0, -3.0), 0.0), ((0.0, 0.0), 0.8),
+                                                 ((0.0, 0.0), 0.0)])
+def test_compiled_dense_stick_slip_equals_the_array_code(slide_mm: tuple[float, float], twist_rad: float) -> None:
+    """The generator's compiled stick/slip rounds on the dense operator against the array code every operator
+    runs: stuck, partial slip, gross slide and gross twist, no load."""
+    from univtac_data.generators.tactile.shear import (
+        CG_TOLERANCE, SLIDE_TOLERANCE, SLIP_ROUND_TOLERANCE, _DenseCells, _stick_slip, _stick_slip_dense,
+    )
+
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    a, dx, n = 2.0, 0.25, 30
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    r2 = (x[None, :] ** 2 + (x[:, None] * 1.3) ** 2) / a**2
+    field = np.where(r2 < 1.0, 0.1 * np.sqrt(np.maximum(1.0 - r2, 0.0)), 0.0)
+    rows, cols = np.nonzero(field > 0.0)
+    p = field[rows, cols]
+    total_p = float(p.sum())
+    rx, ry = x[cols] - float((p * x[cols]).sum() / total_p), x[rows] - float((p * x[rows]).sum() / total_p)
+    op = _DenseCells(rows, cols, field.shape, dx, dx, material)
+    s = np.asarray(slide_mm, dtype=np.float64)
+    q, lam_s, lam_t = _stick_slip(op, p, rx, ry, s, twist_rad, material.friction, dx * dx, total_p, 8)
+    q_c, lam_s_c, lam_t_c = _stick_slip_dense(op.matrix, p, rx, ry, s[0], s[1], twist_rad, material.friction,
+                                              dx * dx, total_p, 8, CG_TOLERANCE, SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE)
+    assert (lam_s_c, lam_t_c) == pytest.approx((lam_s, lam_t), rel=1e-12)
+    np.testing.assert_allclose(q_c, q, rtol=0.0, atol=1e-9 * max(np.abs(q).max(), 1e-300))
+    if slide_mm == (5.0, -3.0):
+        assert lam_s < 0.5   # a gross slide was scaled back to the friction limit
+    if twist_rad == 0.8:
+        assert lam_t < 0.5
+    if slide_mm == (0.0, 0.0) and twist_rad == 0.0:
+        assert not q_c.any()

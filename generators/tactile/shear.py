@@ -206,13 +206,6 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
     gradient; q and rhs are (2, m). ``start``: an initial guess (used on ``active``). Stops when the residual
     is ``tol`` of the right-hand side, so a good guess saves iterations without changing what "converged"
     means."""
-    if isinstance(op, _DenseCells):
-        # compiled: on a few hundred cells each iteration's handful of array calls costs more than its
-        # arithmetic
-        keep2 = np.tile(active.astype(np.float64), 2)
-        guess = np.zeros(0) if start is None else np.ascontiguousarray(start, dtype=np.float64).reshape(-1)
-        return _cg_dense(op.matrix, keep2, np.ascontiguousarray(rhs, dtype=np.float64).reshape(-1), guess,
-                         tol, max_iter).reshape(2, -1)
     keep = active.astype(np.float64)
     b = rhs * keep
     if start is None:
@@ -264,6 +257,120 @@ def _cg_dense(matrix: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.n
     return q
 
 
+def _stick_slip(op: CellOperator, p: np.ndarray, rx: np.ndarray, ry: np.ndarray, s: np.ndarray, theta: float,
+                mu: float, area: float, total_p: float, slip_rounds: int) -> tuple[np.ndarray, float, float]:
+    """Steps 2 to 4 of the module docstring on the m contact cells: tractions q (2, m) MPa for the elastic slide
+    ``s`` (2,) mm and twist ``theta`` rad, with normal pressure ``p`` (m,) MPa at offsets ``rx``, ``ry`` (m,)
+    mm from its centroid; and the fractions ``lam_s``, ``lam_t`` of slide and twist the friction limit lets
+    the gel hold (1: stuck)."""
+    ones = np.ones(p.shape)
+    every = np.ones(p.shape, dtype=bool)
+    q = np.zeros((2, *p.shape))
+    lam_s = lam_t = 1.0
+    if np.any(s != 0.0):
+        q_s = _cg(op, every, np.stack([s[0] * ones, s[1] * ones]))
+        force = np.hypot(*(q_s.sum(axis=1) * area))
+        limit = mu * total_p * area
+        lam_s = limit / force if force > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
+        q += lam_s * q_s
+    if theta != 0.0:
+        q_t = _cg(op, every, np.stack([-theta * ry, theta * rx]))
+        torque = abs(float((rx * q_t[1] - ry * q_t[0]).sum() * area))
+        limit = mu * float((p * np.hypot(rx, ry)).sum() * area)
+        lam_t = limit / torque if torque > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
+        q += lam_t * q_t
+    if not np.any(q != 0.0):
+        return q, lam_s, lam_t
+    target = np.stack([lam_s * s[0] - lam_t * theta * ry, lam_s * s[1] + lam_t * theta * rx])
+    limit_cell = mu * p
+    sliding = np.zeros(p.shape, dtype=bool)
+    q_slip = np.zeros_like(q)
+    rounds, solved_loose = 0, False
+    while True:
+        mag = np.hypot(q[0], q[1])
+        over = ~sliding & (mag > limit_cell * (1.0 + 1e-9))
+        if over.any() and rounds < slip_rounds:
+            sliding |= over
+            rounds += 1
+            with np.errstate(invalid="ignore", divide="ignore"):
+                unit = np.where(mag > 0.0, q / np.where(mag > 0.0, mag, 1.0), 0.0)
+            q_slip = np.where(sliding, limit_cell * unit, q_slip)
+            tol = SLIP_ROUND_TOLERANCE
+        elif solved_loose:
+            tol = CG_TOLERANCE  # the slip set has settled (or the rounds are spent): converge it once
+        else:
+            break
+        stick = ~sliding
+        # the previous round's stuck tractions are a close guess: only the cells that just began to slide moved
+        q = q_slip + (_cg(op, stick, target - op(q_slip), tol=tol, start=q - q_slip) if stick.any() else 0.0)
+        solved_loose = tol == SLIP_ROUND_TOLERANCE
+    return q, lam_s, lam_t
+
+
+@numba.njit(cache=True, nogil=True)
+def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray, s_x: float, s_y: float,
+                      theta: float, mu: float, area: float, total_p: float, slip_rounds: int, cg_tol: float,
+                      round_tol: float, slide_tol: float) -> tuple[np.ndarray, float, float]:  # pragma: no cover
+    # _stick_slip with the dense operator, compiled: on the few hundred cells of a contact its dozens of array
+    # calls a round cost more than the arithmetic. Vectors are flattened (2 m,): x components, then y.
+    m = p.size
+    every = np.ones(2 * m)
+    q = np.zeros(2 * m)
+    lam_s = lam_t = 1.0
+    if s_x != 0.0 or s_y != 0.0:
+        rhs = np.empty(2 * m)
+        rhs[:m], rhs[m:] = s_x, s_y
+        q_s = _cg_dense(matrix, every, rhs, np.zeros(0), cg_tol, 200)
+        force = np.hypot(q_s[:m].sum() * area, q_s[m:].sum() * area)
+        limit = mu * total_p * area
+        if force > limit * (1.0 + slide_tol):
+            lam_s = limit / force
+        q += lam_s * q_s
+    if theta != 0.0:
+        rhs = np.empty(2 * m)
+        rhs[:m], rhs[m:] = -theta * ry, theta * rx
+        q_t = _cg_dense(matrix, every, rhs, np.zeros(0), cg_tol, 200)
+        torque = abs((rx * q_t[m:] - ry * q_t[:m]).sum() * area)
+        limit = mu * (p * np.hypot(rx, ry)).sum() * area
+        if torque > limit * (1.0 + slide_tol):
+            lam_t = limit / torque
+        q += lam_t * q_t
+    if not np.any(q != 0.0):
+        return q.reshape(2, m), lam_s, lam_t
+    target = np.empty(2 * m)
+    target[:m], target[m:] = lam_s * s_x - lam_t * theta * ry, lam_s * s_y + lam_t * theta * rx
+    limit_cell = mu * p
+    sliding = np.zeros(m, np.bool_)
+    q_slip = np.zeros(2 * m)
+    keep = np.empty(2 * m)
+    rounds, solved_loose = 0, False
+    while True:
+        mag = np.hypot(q[:m], q[m:])
+        over = ~sliding & (mag > limit_cell * (1.0 + 1e-9))
+        if over.any() and rounds < slip_rounds:
+            sliding |= over
+            rounds += 1
+            for i in range(m):
+                if sliding[i]:
+                    positive = mag[i] > 0.0
+                    q_slip[i] = limit_cell[i] * (q[i] / mag[i]) if positive else 0.0
+                    q_slip[m + i] = limit_cell[i] * (q[m + i] / mag[i]) if positive else 0.0
+            tol = round_tol
+        elif solved_loose:
+            tol = cg_tol
+        else:
+            break
+        if sliding.all():
+            q = q_slip.copy()
+        else:
+            for i in range(m):
+                keep[i] = keep[m + i] = 0.0 if sliding[i] else 1.0
+            pushed = np.dot(matrix, q_slip.astype(np.float32)).astype(np.float64)
+            q = q_slip + _cg_dense(matrix, keep, target - pushed, q - q_slip, tol, 200)
+        solved_loose = tol == round_tol
+    return q.reshape(2, m), lam_s, lam_t
+
+
 def solve_shear(
     pressure_mpa: np.ndarray,
     contact_mask: np.ndarray,
@@ -308,52 +415,16 @@ def solve_shear(
     cx, cy = float((p * gx).sum() / total_p), float((p * gy).sum() / total_p)
     rx, ry = gx - cx, gy - cy
     op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
-    ones = np.ones(p.shape)
-    every = np.ones(p.shape, dtype=bool)
-
-    q = np.zeros((2, *p.shape))
-    lam_s = lam_t = 1.0
-    if np.any(s != 0.0):
-        q_s = _cg(op, every, np.stack([s[0] * ones, s[1] * ones]))
-        force = np.hypot(*(q_s.sum(axis=1) * area))
-        limit = mu * total_p * area
-        lam_s = limit / force if force > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
-        q += lam_s * q_s
-    if theta != 0.0:
-        q_t = _cg(op, every, np.stack([-theta * ry, theta * rx]))
-        torque = abs(float((rx * q_t[1] - ry * q_t[0]).sum() * area))
-        limit = mu * float((p * np.hypot(rx, ry)).sum() * area)
-        lam_t = limit / torque if torque > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
-        q += lam_t * q_t
+    if isinstance(op, _DenseCells):
+        q, lam_s, lam_t = _stick_slip_dense(op.matrix, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area,
+                                            total_p, slip_rounds, CG_TOLERANCE, SLIP_ROUND_TOLERANCE,
+                                            SLIDE_TOLERANCE)
+    else:
+        q, lam_s, lam_t = _stick_slip(op, p, rx, ry, s, theta, mu, area, total_p, slip_rounds)
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta
     r_mean = float((p * np.hypot(rx, ry)).sum() / total_p)
     slip += (1.0 - lam_s) * float(np.hypot(*s)) + (1.0 - lam_t) * abs(theta) * r_mean
-
-    if np.any(q != 0.0):
-        target = np.stack([lam_s * s[0] - lam_t * theta * ry, lam_s * s[1] + lam_t * theta * rx])
-        limit_cell = mu * p
-        sliding = np.zeros(p.shape, dtype=bool)
-        q_slip = np.zeros_like(q)
-        rounds, solved_loose = 0, False
-        while True:
-            mag = np.hypot(q[0], q[1])
-            over = ~sliding & (mag > limit_cell * (1.0 + 1e-9))
-            if over.any() and rounds < slip_rounds:
-                sliding |= over
-                rounds += 1
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    unit = np.where(mag > 0.0, q / np.where(mag > 0.0, mag, 1.0), 0.0)
-                q_slip = np.where(sliding, limit_cell * unit, q_slip)
-                tol = SLIP_ROUND_TOLERANCE
-            elif solved_loose:
-                tol = CG_TOLERANCE  # the slip set has settled (or the rounds are spent): converge it once
-            else:
-                break
-            stick = ~sliding
-            # the previous round's stuck tractions are a close guess: only the cells that just began to slide moved
-            q = q_slip + (_cg(op, stick, target - op(q_slip), tol=tol, start=q - q_slip) if stick.any() else 0.0)
-            solved_loose = tol == SLIP_ROUND_TOLERANCE
 
     traction = np.zeros((2, *shape))
     traction[:, rows, cols] = q

@@ -131,21 +131,43 @@ def _separable_blur(field: np.ndarray, row_weights: np.ndarray, col_weights: np.
     # but measured no faster: the loops are bound by loads and stores.)
     h, w = field.shape
     r_rows, r_cols = (row_weights.size - 1) // 2, (col_weights.size - 1) // 2
+    n_rows, n_cols = row_weights.size, col_weights.size
     across = np.zeros((h, w + 2 * r_cols), np.float32)
     for i in range(h):
         row = across[i, r_cols : r_cols + w]
-        for k in range(row_weights.size):
-            source = i + k - r_rows
-            if 0 <= source < h:
-                weight = row_weights[k]
-                source_row = field[source]
-                for j in range(w):
-                    row[j] += weight * source_row[j]
+        k, k_end = max(0, r_rows - i), min(n_rows, h + r_rows - i)  # the taps whose source row is in the field
+        while k + 4 <= k_end:  # four taps per pass over the row: a quarter of the loads and stores of the sum
+            s0, s1, s2, s3 = field[i + k - r_rows], field[i + k + 1 - r_rows], field[i + k + 2 - r_rows], \
+                field[i + k + 3 - r_rows]
+            w0, w1, w2, w3 = row_weights[k], row_weights[k + 1], row_weights[k + 2], row_weights[k + 3]
+            for j in range(w):
+                total = row[j]   # added tap by tap, in order: the same sums as one tap per pass
+                total += w0 * s0[j]
+                total += w1 * s1[j]
+                total += w2 * s2[j]
+                total += w3 * s3[j]
+                row[j] = total
+            k += 4
+        for k in range(k, k_end):
+            weight, source_row = row_weights[k], field[i + k - r_rows]
+            for j in range(w):
+                row[j] += weight * source_row[j]
     out = np.zeros((h, w), np.float32)
     bounded = floor.shape[0] > 0
     for i in range(h):
         out_row, padded = out[i], across[i]
-        for k in range(col_weights.size):
+        k = 0
+        while k + 4 <= n_cols:
+            w0, w1, w2, w3 = col_weights[k], col_weights[k + 1], col_weights[k + 2], col_weights[k + 3]
+            for j in range(w):
+                total = out_row[j]
+                total += w0 * padded[j + k]
+                total += w1 * padded[j + k + 1]
+                total += w2 * padded[j + k + 2]
+                total += w3 * padded[j + k + 3]
+                out_row[j] = total
+            k += 4
+        for k in range(k, n_cols):
             weight = col_weights[k]
             for j in range(w):
                 out_row[j] += weight * padded[j + k]

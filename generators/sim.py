@@ -22,6 +22,7 @@ from univtac_data.generators.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to
 from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,
+    GapFieldBuffer,
     GelModel,
     PixelBuffers,
     TactileConfig,
@@ -121,6 +122,7 @@ class GripperSim:
         self.pixels: dict[str, FrameStack] = {}
         self._grid = sensor_grid(profile, 1)
         self._gap_cutoff_mm = TACTILE_GAP_CUTOFF_MM[self.config.contact_method]
+        self._gap_buffers = {pad: GapFieldBuffer(self._grid.shape) for pad in PADS}
         self._pixel_layout = PixelBuffers.layout(profile.image_height_px, profile.image_width_px)
         solver_step, shear_step = cell_steps(profile, self.config)
         self._tactile = TactileConfig(
@@ -222,15 +224,18 @@ class GripperSim:
             site = self._pad_sites[pad]
             pad_pos, pad_mat = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
             rel = relative_pose(pad_pos, pad_mat, obj_pos, obj_mat)
+            field = self._gap_buffers[pad]
             gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid,
-                            cutoff_mm=self._gap_cutoff_mm)
-            tangential_mm, twist_rad = self._motion_since_onset(pad, gap, pad_pos, pad_mat, obj_pos, obj_mat)
+                            cutoff_mm=self._gap_cutoff_mm, out=field)
+            near = gap[field.box]
+            touching = bool(near.size) and float(near.min()) < 0.0
+            tangential_mm, twist_rad = self._motion_since_onset(pad, touching, pad_pos, pad_mat, obj_pos, obj_mat)
             stacks = {name: self.pixels[f"tactile/{pad}/{name}"] for name in PIXEL_FIELDS}
             rows = PixelBuffers(**{name: stack.next_row(*self._pixel_layout[name]) for name, stack in stacks.items()})
             frame = simulate_frame(
                 self.profile, gap, method=self.config.contact_method,
                 tangential_mm=tangential_mm, twist_rad=twist_rad, state=self._states[pad], config=self._tactile,
-                out=rows,
+                out=rows, gap_box=field.box,
             )
             for stack in stacks.values():
                 stack.commit()
@@ -250,7 +255,7 @@ class GripperSim:
         assert self.config.record_rate_hz is not None
         self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
 
-    def _motion_since_onset(self, pad: str, gap: np.ndarray, pad_pos: np.ndarray, pad_mat: np.ndarray,
+    def _motion_since_onset(self, pad: str, touching: bool, pad_pos: np.ndarray, pad_mat: np.ndarray,
                             obj_pos: np.ndarray, obj_mat: np.ndarray) -> tuple[tuple[float, float], float]:
         """Tangential displacement (pad x, y, mm) and twist about the pad normal (rad) of the object since
         this contact began.
@@ -261,7 +266,7 @@ class GripperSim:
         near the identity (the object's own axes may be aligned with the pad normal, where an angle read
         from them is undefined).
         """
-        if not gap.min() < 0.0:   # no overlap (one read of the field, no mask)
+        if not touching:   # no overlap in the pad's gap field
             self._anchors[pad] = None
             return (0.0, 0.0), 0.0
         if self._anchors[pad] is None:

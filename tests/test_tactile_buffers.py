@@ -119,3 +119,41 @@ def test_no_geometric_contact_gives_an_empty_box() -> None:
     assert result.normal_force_n == 0.0 and not result.contact_mask.any()
     np.testing.assert_array_equal(render_shaded(result.depth_mm, GF225, deformed_box=result.box),
                                   render_shaded(result.depth_mm, GF225))
+
+
+def far_outside(gap: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
+    """``gap`` with every cell outside ``box`` set to GAP_FAR_MM, as the generator's gap field reads there."""
+    from univtac_data.generators.tactile import GAP_FAR_MM
+
+    out = np.full_like(gap, GAP_FAR_MM)
+    out[box] = gap[box]
+    return out
+
+
+@pytest.mark.parametrize("method", ["geometric", "elastic"])
+@pytest.mark.parametrize("shape", ["sphere", "cross"])
+def test_a_frame_told_its_gap_box_equals_one_that_scans_the_field(method: str, shape: str) -> None:
+    """``gap_box`` only says where to look: the same frame, array for array, including a box that holds no
+    overlap and an empty box (no object)."""
+    gap = demo_gap(MINI, shape)
+    rows, cols = np.nonzero(gap < 0.0)
+    around = (slice(rows.min() - 9, rows.max() + 7), slice(cols.min() - 5, cols.max() + 11))
+    aside = (slice(0, 20), slice(0, 30))
+    empty = (slice(0, 0), slice(0, 0))
+    for box in (around, aside, empty):
+        field = far_outside(gap, box)
+        kwargs = dict(method=method, tangential_mm=(0.08, -0.03), twist_rad=0.01)
+        scanned = simulate_frame(MINI, field, **kwargs)  # type: ignore[arg-type]
+        told = simulate_frame(MINI, field, gap_box=box, **kwargs)  # type: ignore[arg-type]
+        assert scanned.contact_mask.any() == (box == around)
+        for name in ("depth_mm", "depth_um", "pressure_mpa", "contact_mask", "pure_rgb", "marked_rgb",
+                     "markers_px", "shear_force_n"):
+            np.testing.assert_array_equal(getattr(told, name), getattr(scanned, name), err_msg=f"{box}: {name}")
+        assert told.normal_force_n == scanned.normal_force_n
+
+
+def test_nan_inside_the_gap_box_is_refused() -> None:
+    gap = demo_gap(MINI, "sphere")
+    gap[100, 150] = np.nan
+    with pytest.raises(ValueError, match="gap_mm contains NaN"):
+        simulate_frame(MINI, gap, gap_box=(slice(90, 110), slice(140, 160)))

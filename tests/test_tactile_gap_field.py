@@ -447,3 +447,36 @@ def test_convex_entries_in_a_window_touch_nothing_outside_it() -> None:
         outside = np.ones(grid.shape, bool)
         outside[win] = False
         assert np.all(part[outside] == GAP_FAR_MM)
+
+
+@pytest.mark.parametrize("cutoff_mm", [0.0, CUTOFF_MM])
+def test_a_reused_gap_field_buffer_gives_the_fresh_field_and_its_box(cutoff_mm: float) -> None:
+    """Frame after frame (the pad moving across and away from the objects), the buffer resets only what the
+    previous frame wrote, yet holds exactly a fresh field; outside its box everything reads GAP_FAR_MM."""
+    from univtac_data.generators.tactile import GapFieldBuffer
+
+    rng = np.random.default_rng(21)
+    grid = sensor_grid(MINI, 1)
+    model, names = _random_scene(rng, grid)
+    names = ["sphere0", "box1", "mesh2"]   # a few parts, so that the written box moves and changes size
+    data = mujoco.MjData(model)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "pad")
+    start = model.site_pos[site].copy()
+    buffer = GapFieldBuffer(grid.shape)
+    boxes = []
+    for dx_m, dz_m in [(0.0, 0.0), (0.004, 0.0), (-0.003, 0.002), (0.2, 0.0), (0.001, -0.001), (0.0, 0.0)]:
+        model.site_pos[site] = start + [dx_m, 0.0, dz_m]
+        mujoco.mj_forward(model, data)
+        pad = pad_pose(model, data, "pad")
+        got = gap_field(model, data, pad, names, grid, cutoff_mm=cutoff_mm, out=buffer)
+        assert got is buffer.gap_mm
+        np.testing.assert_array_equal(got, gap_field(model, data, pad, names, grid, cutoff_mm=cutoff_mm))
+        outside = np.ones(grid.shape, dtype=bool)
+        outside[buffer.box] = False
+        assert np.all(got[outside] == GAP_FAR_MM)
+        boxes.append(((buffer.box[0].start, buffer.box[0].stop, buffer.box[1].start, buffer.box[1].stop),
+                      int((got < GAP_FAR_MM).sum())))
+    assert len({box for box, _ in boxes}) >= 4
+    assert boxes[3][1] == 0 and min(near for _, near in boxes[:3]) > 100   # moved 200 mm aside: nothing near
+    with pytest.raises(ValueError, match="GapFieldBuffer of shape"):
+        gap_field(model, data, pad, names, sensor_grid(MINI, 2), out=buffer)

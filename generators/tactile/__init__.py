@@ -9,7 +9,7 @@ per-pad fields) -> ``contact_sheet`` (a PNG to look at).
 from .contact import GAP_FAR_MM, ContactConfig, ContactResult, GelModel, solve_contact
 from .contact_sheet import SheetFrame, contact_sheet, image_gallery
 from .frame import PixelBuffers, TactileConfig, TactileFrame, render_reference, simulate_frame
-from .gap_field import PadPose, gap_field, pad_pose
+from .gap_field import GapFieldBuffer, PadPose, gap_field, pad_pose
 from .indenters import DEMO_INDENTERS, cross_gap, cylinder_gap, demo_gap, punch_gap, sphere_gap
 from .optics import ShadingConfig, render_shaded
 from .optics_calibrated import TaximCalibration, load_taxim_calibration, taxim_calibration_dir
@@ -17,7 +17,8 @@ from .sensor_model import SensorGrid, marker_reference_mm, marker_reference_px, 
 from .shear import ContactState
 
 __all__ = [
-    "DEMO_INDENTERS", "GAP_FAR_MM", "ContactConfig", "ContactResult", "ContactState", "GelModel", "PadPose", "PixelBuffers",
+    "DEMO_INDENTERS", "GAP_FAR_MM", "ContactConfig", "ContactResult", "ContactState", "GapFieldBuffer", "GelModel",
+    "PadPose", "PixelBuffers",
     "SensorGrid",
     "ShadingConfig", "SheetFrame", "TactileConfig", "TactileFrame", "TaximCalibration", "contact_sheet",
     "cross_gap", "cylinder_gap", "demo_gap", "gap_field", "image_gallery", "load_taxim_calibration", "marker_reference_mm",

@@ -66,18 +66,21 @@ class ContactResult:
 
 
 def solve_contact(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
-                  initial_pressure_mpa: np.ndarray | None = None, thickness_mm: float | None = None) -> ContactResult:
+                  initial_pressure_mpa: np.ndarray | None = None, thickness_mm: float | None = None,
+                  gap_box: tuple[slice, slice] | None = None) -> ContactResult:
     """Solve the normal contact of a gap field (ny, nx) mm (negative = overlap) on ``grid``.
 
     ``initial_pressure_mpa`` (ny, nx), e.g. the previous frame's: a starting point for the elastic solve
     (the solution does not depend on it, only the iterations do). ``thickness_mm``: the gel layer's
-    thickness, used by the elastic method when ``config.gel`` is "layer" (which then requires it)."""
+    thickness, used by the elastic method when ``config.gel`` is "layer" (which then requires it).
+    ``gap_box``: (rows, cols) outside which the gap is positive, if known; the geometric method then
+    looks for the overlap only there."""
     if gap_mm.shape != grid.shape:
         raise ValueError(f"gap field shape must match the grid {grid.shape} (got {gap_mm.shape})")
     if config.method == "geometric":
         from .contact_geometric import solve_geometric
 
-        return solve_geometric(gap_mm, grid, material, config)
+        return solve_geometric(gap_mm, grid, material, config, gap_box)
     if config.method == "elastic":
         from .contact_elastic import solve_elastic
 

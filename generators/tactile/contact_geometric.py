@@ -29,15 +29,25 @@ from .sensor_model import SensorGrid
 __all__ = ["solve_geometric"]
 
 
-def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig) -> ContactResult:
-    """Geometric contact of the gap field (ny, nx) mm on ``grid``; see the module docstring."""
-    mask = gap_mm < 0.0
+def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, config: ContactConfig,
+                    gap_box: tuple[slice, slice] | None = None) -> ContactResult:
+    """Geometric contact of the gap field (ny, nx) mm on ``grid``; see the module docstring. ``gap_box``:
+    (rows, cols) outside which the gap is positive, if known: the overlap is looked for only there."""
+    if gap_box is None:
+        mask = local = gap_mm < 0.0
+        r_off = c_off = 0
+    else:
+        mask = np.zeros(grid.shape, dtype=bool)
+        local = mask[gap_box]
+        np.less(gap_mm[gap_box], 0.0, out=local)
+        r_off, c_off = gap_box[0].indices(grid.shape[0])[0], gap_box[1].indices(grid.shape[1])[0]
     depth = np.zeros(grid.shape)
     pressure = np.zeros(grid.shape)
-    rows = np.flatnonzero(mask.any(axis=1))
+    rows = np.flatnonzero(local.any(axis=1))
     if rows.size == 0:
         return ContactResult(depth, pressure, mask, 0.0, box=(slice(0, 0), slice(0, 0)))
-    cols = np.flatnonzero(mask[rows[0] : rows[-1] + 1].any(axis=0))
+    cols = np.flatnonzero(local[rows[0] : rows[-1] + 1].any(axis=0)) + c_off
+    rows += r_off
     sigma = config.smooth_sigma_mm
     grow_r = int(np.ceil(4.0 * sigma / grid.dy_mm)) + 1
     grow_c = int(np.ceil(4.0 * sigma / grid.dx_mm)) + 1

@@ -212,6 +212,7 @@ def simulate_frame(
     noise_seed: int | None = None,
     config: TactileConfig | None = None,
     out: PixelBuffers | None = None,
+    gap_box: tuple[slice, slice] | None = None,
 ) -> TactileFrame:
     """Simulate one pad for one frame.
 
@@ -221,7 +222,9 @@ def simulate_frame(
     frame, mm; ``twist_rad``: its rotation about the pad normal, rad; both relative to contact onset when
     ``state`` is None, else absolute (the state remembers the onset). ``noise_seed``: seeded sensor noise.
     ``out``: buffers the frame's images, ``depth_um`` and ``contact_mask`` are written into (the returned
-    frame holds them); default: new arrays.
+    frame holds them); default: new arrays. ``gap_box``: (rows, cols) outside which ``gap_mm`` reads
+    ``GAP_FAR_MM`` (no object), when the caller knows it (``GapFieldBuffer.box``): the checks and the
+    geometric contact then read only that box.
     """
     config = config or TactileConfig()
     contact_cfg = config.contact
@@ -231,7 +234,9 @@ def simulate_frame(
     gap = np.asarray(gap_mm, dtype=np.float64)
     if gap.shape != (h, w):
         raise ValueError(f"gap_mm must be (H, W) = ({h}, {w}) for sensor {profile.name!r} (got {gap.shape})")
-    top = float(gap.max())   # one read: NaN propagates through the max, and most callers need no clamp
+    scanned = gap if gap_box is None else gap[gap_box]
+    # one read: NaN propagates through the max, and most callers need no clamp
+    top = float(scanned.max()) if scanned.size else GAP_FAR_MM
     if np.isnan(top):
         raise ValueError("gap_mm contains NaN")
     if top > GAP_FAR_MM:
@@ -244,7 +249,8 @@ def simulate_frame(
     grid = sensor_grid(profile, step)
     previous = state.pressure_mpa if state is not None else None
     layer_mm = profile.gel_thickness_mm if contact_cfg.method == "elastic" and contact_cfg.gel == "layer" else None
-    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous, layer_mm)
+    result = solve_contact(downsample_overlap_or_mean(gap, step), grid, material, contact_cfg, previous, layer_mm,
+                           gap_box if step == 1 else None)
     box = result.box if step == 1 else None  # the solver's box, in image pixels
     if contact_cfg.method == "geometric":
         # on the image grid already: the depth holds the overlap and the pressure is zero off the mask

@@ -40,7 +40,7 @@ from .gap_primitives import (
 )
 from .sensor_model import SensorGrid
 
-__all__ = ["PadPose", "gap_field", "pad_pose"]
+__all__ = ["GapFieldBuffer", "PadPose", "gap_field", "pad_pose"]
 
 M_TO_MM = 1000.0
 
@@ -51,6 +51,17 @@ class PadPose:
 
     rotation: np.ndarray
     origin_mm: np.ndarray
+
+
+class GapFieldBuffer:
+    """One pad's gap field (ny, nx) mm, kept from frame to frame: ``gap_field(..., out=buffer)`` resets to
+    ``GAP_FAR_MM`` only the cells the previous call wrote, not the whole grid, and records in ``box`` the
+    (rows, cols) outside which the new field reads ``GAP_FAR_MM`` (an empty box: no object below the cutoff),
+    so that its readers need not scan the rest. Each call overwrites the field: use it before the next."""
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.gap_mm = np.full(shape, GAP_FAR_MM)
+        self.box: tuple[slice, slice] = (slice(0, 0), slice(0, 0))
 
 
 def pad_pose(model: mujoco.MjModel, data: mujoco.MjData, name: str, kind: str = "site") -> PadPose:
@@ -84,13 +95,21 @@ def gap_field(
     geoms: Sequence[int | str],
     grid: SensorGrid,
     cutoff_mm: float = 10.0,
+    out: GapFieldBuffer | None = None,
 ) -> np.ndarray:
     """Gap (ny, nx) mm on ``grid`` from the pad to the listed geoms at the current ``data`` pose.
 
     Supported geom types: sphere, capsule, cylinder, box, ellipsoid, mesh (convex or not). Gaps above
-    ``cutoff_mm`` (and cells with no object) read ``GAP_FAR_MM``.
+    ``cutoff_mm`` (and cells with no object) read ``GAP_FAR_MM``. ``out``: the buffer to write the field into
+    (and its ``box``); default: a new array.
     """
-    gap = np.full(grid.shape, GAP_FAR_MM)
+    if out is None:
+        gap = np.full(grid.shape, GAP_FAR_MM)
+    else:
+        if out.gap_mm.shape != grid.shape:
+            raise ValueError(f"GapFieldBuffer of shape {out.gap_mm.shape} for a grid of {grid.shape}")
+        gap = out.gap_mm
+        gap[out.box] = GAP_FAR_MM
     # the object's part above the cutoff reads GAP_FAR_MM whatever its height, so each geom is cut there
     # (with rounding slack) and evaluated only on the cells under what is left
     z_max = cutoff_mm + SLACK_MM
@@ -117,9 +136,11 @@ def gap_field(
         box = rasterise_lowest(gap, grid.x_mm, grid.y_mm, np.concatenate(triangles), cutoff=cutoff_mm)
         if box is not None:
             written.append(box)
-    if written:
-        near = gap[_union(written)]
-        near[near > cutoff_mm] = GAP_FAR_MM
+    box = _union(written) if written else (slice(0, 0), slice(0, 0))
+    near = gap[box]
+    np.putmask(near, near > cutoff_mm, GAP_FAR_MM)
+    if out is not None:
+        out.box = box
     return gap
 
 

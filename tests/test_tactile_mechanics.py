@@ -352,3 +352,36 @@ def test_compiled_dense_stick_slip_equals_the_array_code(slide_mm: tuple[float, 
         assert lam_t < 0.5
     if slide_mm == (0.0, 0.0) and twist_rad == 0.0:
         assert not q_c.any()
+
+
+def whole_grid_extrapolation(pressure: np.ndarray) -> np.ndarray:
+    """The pressure-squared extrapolation past the contact edge over the whole solver grid (rolls wrap at its
+    edges): the array code that the windowed one must reproduce exactly."""
+    q, inside = pressure * pressure, pressure > 0.0
+    total, count = np.zeros_like(q), np.zeros_like(q)
+    for axis in (0, 1):
+        for shift in (1, -1):
+            ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
+            total += np.where(ok, 2.0 * np.roll(q, shift, axis) - np.roll(q, 2 * shift, axis), 0.0)
+            count += ok
+    return np.where(count > 0, total / np.maximum(count, 1.0), q)
+
+
+@pytest.mark.parametrize("where", [(slice(30, 50), slice(40, 70)), (slice(2, 9), slice(60, 75)),
+                                   (slice(0, 6), slice(0, 8)), (slice(70, 80), slice(95, 107)),
+                                   (slice(1, 79), slice(1, 106))])
+def test_pressure_extrapolation_on_the_load_box_equals_the_whole_grid_one(where: tuple[slice, slice]) -> None:
+    """Loads inside the grid, two cells from its edge (the box grown by two just fits), on its edges and
+    corners (the whole grid, wrapping as before) and nearly everywhere."""
+    from univtac_data.generators.tactile.frame import _upsample_pressure
+    from univtac_data.generators.tactile.sensor_model import upsample_linear
+
+    step, shape = 3, (240, 320)
+    coarse = np.zeros((80, 107))
+    rng = np.random.default_rng(7)
+    coarse[where] = rng.random(coarse[where].shape) * (rng.random(coarse[where].shape) > 0.2)
+    fine_mask = upsample_linear(coarse, step, shape) > 0.05
+    expected = np.zeros(shape)
+    fine = upsample_linear(whole_grid_extrapolation(coarse), step, shape)
+    expected[fine_mask] = np.sqrt(np.maximum(fine[fine_mask], 0.0))
+    np.testing.assert_array_equal(_upsample_pressure(coarse, step, fine_mask), expected)

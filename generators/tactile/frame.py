@@ -108,7 +108,26 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
     if step == 1:
         return np.where(fine_mask, pressure, 0.0)
     q = pressure * pressure
-    inside = pressure > 0.0
+    # only cells next to the load change: extrapolate on its box grown by two cells, whose zero border keeps the
+    # rolls below from wrapping anything in (the same result as on the whole grid, where they wrap at its edges)
+    box = _nonzero_box(pressure)
+    if box is not None:
+        grown = (slice(box[0].start - 2, box[0].stop + 2), slice(box[1].start - 2, box[1].stop + 2))
+        if grown[0].start >= 0 and grown[1].start >= 0 and grown[0].stop <= q.shape[0] and grown[1].stop <= q.shape[1]:
+            q[grown] = _extrapolated_squares(q[grown], pressure[grown] > 0.0)
+        else:
+            q = _extrapolated_squares(q, pressure > 0.0)
+    out = np.zeros(fine_mask.shape)
+    win = _nonzero_box(fine_mask)   # pressure is zero off the contact: upsample only its box
+    if win is not None:
+        fine = upsample_linear(q, step, fine_mask.shape, window=win)
+        out[win] = np.where(fine_mask[win], np.sqrt(np.maximum(fine, 0.0)), 0.0)
+    return out
+
+
+def _extrapolated_squares(q: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """``q`` = p^2 (ny, nx) with each cell outside the load (``inside`` false) that has two loaded cells in a
+    row along an axis set to the mean of their linear extrapolations (rolls: the field wraps at its edges)."""
     total = np.zeros_like(q)
     count = np.zeros_like(q)
     for axis in (0, 1):
@@ -118,13 +137,7 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
             ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
             total += np.where(ok, 2.0 * nb1 - nb2, 0.0)
             count += ok
-    q = np.where(count > 0, total / np.maximum(count, 1.0), q)
-    out = np.zeros(fine_mask.shape)
-    win = _nonzero_box(fine_mask)   # pressure is zero off the contact: upsample only its box
-    if win is not None:
-        fine = upsample_linear(q, step, fine_mask.shape, window=win)
-        out[win] = np.where(fine_mask[win], np.sqrt(np.maximum(fine, 0.0)), 0.0)
-    return out
+    return np.where(count > 0, total / np.maximum(count, 1.0), q)
 
 
 def _to_micrometres(depth_mm: np.ndarray, box: tuple[slice, slice] | None = None,

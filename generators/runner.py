@@ -45,8 +45,8 @@ class RunSummary:
 
 # Blosc level per contact model when a run does not choose one. Elastic residual images are wide and low,
 # where level 3 saves the most (about 15 %: GF225 elastic frames go from 290 to 246 KiB, inside the size
-# budget), and it costs about a fifth of their rate, which the elastic rows can spare above their target
-# (25 frames/s/core); geometric frames are small at level 1 already, and their rate has nothing to spare.
+# budget), and it costs about an eighth of their rate, which the elastic rows can spare above their target
+# (25 frames/s/core); geometric frames are small at level 1 already, and their rate has little to spare.
 AUTO_COMPRESSION_LEVEL = {"geometric": 1, "elastic": 3}
 
 

@@ -9,7 +9,7 @@ Why these choices (the spec's 'Encoding' section says the same):
   and generation writes every frame once. LZ4 writes faster and decodes in 59 to 71 % of the time but makes
   residual images 1.7 to 2.2 times larger (spec/format.md, section 9). Writers take another level per episode
   (``write_episode_file(..., compression_level=)``): the generator writes elastic episodes at level 3, which
-  brings GF225 elastic frames inside the size budget for about a fifth of their rate; decoding does not
+  brings GF225 elastic frames inside the size budget for about an eighth of their rate; decoding does not
   depend on the level;
 * depth is integer micrometres, byte-shuffled like everything else: on generated frames (all 14 indenters,
   both contact models) that is about a third smaller, and faster to write and to read, than bit-shuffle

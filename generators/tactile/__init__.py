@@ -18,9 +18,8 @@ from .shear import ContactState
 
 __all__ = [
     "DEMO_INDENTERS", "GAP_FAR_MM", "ContactConfig", "ContactResult", "ContactState", "GapFieldBuffer", "GelModel",
-    "PadPose", "PixelBuffers",
-    "SensorGrid",
-    "ShadingConfig", "SheetFrame", "TactileConfig", "TactileFrame", "TaximCalibration", "contact_sheet",
+    "PadPose", "PixelBuffers", "SensorGrid", "ShadingConfig", "SheetFrame", "TactileConfig", "TactileFrame",
+    "TaximCalibration", "contact_sheet",
     "cross_gap", "cylinder_gap", "demo_gap", "gap_field", "image_gallery", "load_taxim_calibration", "marker_reference_mm",
     "marker_reference_px", "pad_pose", "project_to_px", "punch_gap", "render_reference", "render_shaded", "sensor_grid",
     "simulate_frame", "solve_contact", "sphere_gap", "taxim_calibration_dir",

@@ -37,8 +37,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
-from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
-from univtac_data.generators.indenters import INDENTER_NAMES
+from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
+from univtac_data.generators.indenters.shapes import INDENTER_NAMES
 from univtac_data.storage.encoding import FRAME_BLOCK_BYTES, EncodedArray, Encoding
 from univtac_data.storage.hdf5_store import write_frame_chunks
 

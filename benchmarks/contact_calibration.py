@@ -23,16 +23,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
-from univtac_data.generators.gripper import PADS, GripperParams  # noqa: E402
-from univtac_data.generators.indenter_scene import (  # noqa: E402
+from univtac_data.generators.scene.gripper import PADS, GripperParams  # noqa: E402
+from univtac_data.generators.indenters.scene import (  # noqa: E402
     PAD_SIDE,
     SceneConfig,
     indenter_geom_names,
     indenter_scene_xml,
 )
-from univtac_data.generators.indenters import INDENTERS  # noqa: E402
-from univtac_data.generators.primitives import PRIMITIVE_NAMES  # noqa: E402
-from univtac_data.generators.sim import GripperSim, SimConfig  # noqa: E402
+from univtac_data.generators.indenters.shapes import INDENTERS  # noqa: E402
+from univtac_data.generators.scene.primitives import PRIMITIVE_NAMES  # noqa: E402
+from univtac_data.generators.scene.sim import GripperSim, SimConfig  # noqa: E402
 from univtac_data.generators.tactile import gap_field, pad_pose, sensor_grid, simulate_frame  # noqa: E402
 from univtac_data.schema.sensors import get_sensor  # noqa: E402
 

@@ -35,7 +35,7 @@ from univtac_data.generators.tactile import (  # noqa: E402
     solve_contact,
     sphere_gap,
 )
-from univtac_data.generators.sim import SimConfig, cell_steps  # noqa: E402
+from univtac_data.generators.scene.sim import SimConfig, cell_steps  # noqa: E402
 from univtac_data.generators.tactile.kernels import convolve, kernel_set  # noqa: E402
 from univtac_data.generators.tactile.sensor_model import downsample_overlap_or_mean  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402

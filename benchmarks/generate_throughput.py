@@ -42,8 +42,8 @@ import numpy as np  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
 from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
-from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
-from univtac_data.generators.indenters import INDENTER_NAMES  # noqa: E402
+from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
+from univtac_data.generators.indenters.shapes import INDENTER_NAMES  # noqa: E402
 from univtac_data.generators.runner import compression_level_for  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402
 from univtac_data.storage import Location, write_episode_file  # noqa: E402

@@ -28,21 +28,21 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
-from univtac_data.generators.gripper import MIN_OPENING_M, PADS, GripperParams  # noqa: E402
-from univtac_data.generators.indenter_scene import (  # noqa: E402
+from univtac_data.generators.scene.gripper import MIN_OPENING_M, PADS, GripperParams  # noqa: E402
+from univtac_data.generators.indenters.scene import (  # noqa: E402
     PAD_SIDE,
     SceneConfig,
     indenter_geom_names,
     indenter_scene_xml,
 )
-from univtac_data.generators.indenters import INDENTERS  # noqa: E402
-from univtac_data.generators.primitives import (  # noqa: E402
+from univtac_data.generators.indenters.shapes import INDENTERS  # noqa: E402
+from univtac_data.generators.scene.primitives import (  # noqa: E402
     PRIMITIVE_NAMES,
     GraspParams,
     grasp,
     squeeze_open_loop,
 )
-from univtac_data.generators.sim import GripperSim, SimConfig  # noqa: E402
+from univtac_data.generators.scene.sim import GripperSim, SimConfig  # noqa: E402
 from univtac_data.generators.tactile import ContactConfig, TactileConfig, demo_gap, simulate_frame  # noqa: E402
 from univtac_data.schema.sensors import get_sensor  # noqa: E402
 

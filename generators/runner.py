@@ -21,7 +21,7 @@ from typing import Any
 from tqdm import tqdm
 
 from univtac_data.generators.allocator import keep_freed_memory
-from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, run_indenter_episode
+from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.encoding import ZSTD_LEVELS
 from univtac_data.storage.errors import DatasetError

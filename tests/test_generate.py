@@ -17,13 +17,13 @@ from factories import stored_blosc_levels
 
 from univtac_data import Dataset, check_episode, content_hash, get_sensor
 from univtac_data.generators.allocator import keep_freed_memory
-from univtac_data.generators.gripper import MIN_OPENING_M, PADS
-from univtac_data.generators.indenter_corpus import IndenterEpisodeSpec, corpus_specs, run_indenter_episode
-from univtac_data.generators.indenter_scene import PAD_SIDE, indenter_geom_names, indenter_scene_xml
-from univtac_data.generators.indenters import INDENTER_NAMES, INDENTERS, TIP_HEIGHT_M, indenter_mesh
-from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, squeeze_open_loop
+from univtac_data.generators.scene.gripper import MIN_OPENING_M, PADS
+from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, corpus_specs, run_indenter_episode
+from univtac_data.generators.indenters.scene import PAD_SIDE, indenter_geom_names, indenter_scene_xml
+from univtac_data.generators.indenters.shapes import INDENTER_NAMES, INDENTERS, TIP_HEIGHT_M, indenter_mesh
+from univtac_data.generators.scene.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, squeeze_open_loop
 from univtac_data.generators.runner import run_corpus
-from univtac_data.generators.sim import GripperSim
+from univtac_data.generators.scene.sim import GripperSim
 from univtac_data.storage.backend import META_ATTR
 from univtac_data.storage.errors import DatasetError
 
@@ -93,7 +93,7 @@ def test_same_spec_same_episode_and_conforming():
 def test_geometric_episodes_do_not_depend_on_the_gap_field_above_the_gel(shape, monkeypatch):
     """The geometric contact's gap field is cut at the gel surface (the elastic one's 2 mm above it): an episode
     is the same, array for array, as one made with the higher cut (primitives, several spheres, a mesh)."""
-    import univtac_data.generators.sim as sim_module
+    import univtac_data.generators.scene.sim as sim_module
 
     spec = IndenterEpisodeSpec("gf225", shape, 1, frames=14)
     at_gel = run_indenter_episode(spec)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from univtac_data.generators.frame_stack import PIXEL_FIELDS, FrameStack
+from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS, FrameStack
 from univtac_data.generators.tactile import (
     ContactConfig, PixelBuffers, demo_gap, render_shaded, sensor_grid, simulate_frame, solve_contact,
 )

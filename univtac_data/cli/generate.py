@@ -47,7 +47,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _shape_list(text: str) -> list[str]:
-    from univtac_data.generators.indenters import INDENTER_NAMES
+    from univtac_data.generators.indenters.shapes import INDENTER_NAMES
 
     if text == "all":
         return list(INDENTER_NAMES)
@@ -60,7 +60,7 @@ def _shape_list(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from univtac_data.generators.indenter_corpus import corpus_specs
+    from univtac_data.generators.indenters.corpus import corpus_specs
     from univtac_data.generators.runner import default_workers, run_corpus
 
     for name, value in (("--episodes-per-shape", args.episodes_per_shape), ("--frames-per-episode",

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from univtac_data.episode import Episode
-from univtac_data.generators.frame_stack import PIXEL_FIELDS
-from univtac_data.generators.gripper import PADS
-from univtac_data.generators.sim import RecordedFrame
+from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS
+from univtac_data.generators.scene.gripper import PADS
+from univtac_data.generators.scene.sim import RecordedFrame
 from univtac_data.schema.models import EpisodeMeta, GeneratorInfo, SafetySummary
 
 

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from univtac_data.generators.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
-from univtac_data.generators.gripper import PADS, opening_to_finger_pos
-from univtac_data.generators.sim import GripperSim
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.gripper import PADS, opening_to_finger_pos
+from univtac_data.generators.scene.sim import GripperSim
 
 PRIMITIVE_NAMES = ["grasp", "hold", "move", "rotate", "probe", "release", "place", "squeeze"]
 

@@ -28,8 +28,8 @@ import mujoco
 import numpy as np
 
 from univtac_data.episode import Episode
-from univtac_data.generators.gripper import PADS
-from univtac_data.generators.indenter_scene import (
+from univtac_data.generators.scene.gripper import PADS
+from univtac_data.generators.indenters.scene import (
     BASE_CENTRE_M,
     BASE_HALF_THICKNESS_M,
     OBJECT_NAME,
@@ -38,16 +38,16 @@ from univtac_data.generators.indenter_scene import (
     indenter_geom_names,
     indenter_scene_xml,
 )
-from univtac_data.generators.indenters import TIP_HEIGHT_M, get_indenter
-from univtac_data.generators.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, move, rotate
-from univtac_data.generators.recording import build_episode
-from univtac_data.generators.sim import FrameBudgetReached, GripperSim, SimConfig
+from univtac_data.generators.indenters.shapes import TIP_HEIGHT_M, get_indenter
+from univtac_data.generators.scene.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, move, rotate
+from univtac_data.generators.scene.recording import build_episode
+from univtac_data.generators.scene.sim import FrameBudgetReached, GripperSim, SimConfig
 from univtac_data.generators.tactile import GelModel
 from univtac_data.schema.models import GeneratorInfo
 from univtac_data.schema.sensors import get_sensor
 from univtac_data.version import __version__
 
-GENERATOR_NAME = "univtac_data.generators.indenter_corpus"
+GENERATOR_NAME = "univtac_data.generators.indenters.corpus"
 
 
 @dataclass(frozen=True)

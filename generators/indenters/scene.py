@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from univtac_data.generators.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
-from univtac_data.generators.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml
-from univtac_data.generators.indenters import Indenter
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml
+from univtac_data.generators.indenters.shapes import Indenter
 from univtac_data.schema.sensors import SensorProfile
 
 BASE_HALF_THICKNESS_M = 0.005

@@ -16,9 +16,9 @@ from typing import Literal
 import mujoco
 import numpy as np
 
-from univtac_data.generators.frame_stack import PIXEL_FIELDS, FrameStack
-from univtac_data.generators.geometry import mat_to_quat, relative_pose
-from univtac_data.generators.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to_opening, opening_to_finger_pos
+from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS, FrameStack
+from univtac_data.generators.scene.geometry import mat_to_quat, relative_pose
+from univtac_data.generators.scene.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to_opening, opening_to_finger_pos
 from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,

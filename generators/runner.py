@@ -12,11 +12,11 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from multiprocessing import get_context
-from typing import Any
+from typing import Any, TypeVar
 
 from tqdm import tqdm
 
@@ -25,6 +25,10 @@ from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_in
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.encoding import ZSTD_LEVELS
 from univtac_data.storage.errors import DatasetError
+
+S = TypeVar("S")
+R = TypeVar("R")
+_END: Any = object()  # marks the end of a spec iterator
 
 
 @dataclass
@@ -82,24 +86,31 @@ def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]
                                f"this run asks for {key}={wanted!r}; rerun with the same options or choose a new --out")
 
 
-def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, level: int | None) \
-        -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
+def _local(produce: Callable[..., R], specs: Iterable[S], args: tuple[Any, ...], workers: int) \
+        -> Iterator[tuple[S, R | BaseException]]:
+    """``produce(spec, *args)`` for every spec, in a process pool of ``workers`` (inline for 1), yielding each
+    spec with its result or its exception as they finish (in any order). Specs are drawn lazily, at most
+    ``2 * workers`` ahead of the results taken, so ``specs`` may be endless and closing the stream stops it."""
     if workers <= 1:
         for spec in specs:
             try:
-                yield spec, produce_indenter_episode(spec, url, storage, level)
+                yield spec, produce(spec, *args)
             except Exception as error:  # one bad episode must not end the run; it is reported
                 yield spec, error
         return
     # spawn: no inherited locks or file handles from the driver (h5py and threads do not survive fork)
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        pending: dict[Future[WrittenEpisode], IndenterEpisodeSpec] = {}
-        queue = list(reversed(specs))
+        pending: dict[Future[R], S] = {}
+        queue = iter(specs)
+        exhausted = False
         try:
-            while queue or pending:
-                while queue and len(pending) < 2 * workers:
-                    spec = queue.pop()
-                    pending[pool.submit(produce_indenter_episode, spec, url, storage, level)] = spec
+            while not exhausted or pending:
+                while not exhausted and len(pending) < 2 * workers:
+                    spec = next(queue, _END)
+                    if spec is _END:
+                        exhausted = True
+                        break
+                    pending[pool.submit(produce, spec, *args)] = spec
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
                     spec = pending.pop(future)
@@ -111,8 +122,9 @@ def _local(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: in
             raise
 
 
-def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int, address: str | None,
-         level: int | None) -> Iterator[tuple[IndenterEpisodeSpec, WrittenEpisode | BaseException]]:
+def _ray(produce: Callable[..., R], specs: Iterable[S], args: tuple[Any, ...], workers: int, address: str | None) \
+        -> Iterator[tuple[S, R | BaseException]]:
+    """As ``_local``, as Ray tasks (a local Ray with ``workers`` CPUs, or the cluster at ``address``)."""
     try:
         import ray
     except ImportError:
@@ -122,9 +134,16 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
         kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
         ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, **kwargs)
     try:
-        remote = ray.remote(num_cpus=1)(produce_indenter_episode)
-        futures = {remote.remote(spec, url, storage, level): spec for spec in specs}
-        while futures:
+        remote = ray.remote(num_cpus=1)(produce)
+        queue, futures = iter(specs), {}
+        while True:
+            while len(futures) < 2 * workers:
+                spec = next(queue, _END)
+                if spec is _END:
+                    break
+                futures[remote.remote(spec, *args)] = spec
+            if not futures:
+                break
             done, _ = ray.wait(list(futures), num_returns=1)
             spec = futures.pop(done[0])
             try:
@@ -134,6 +153,15 @@ def _ray(specs: list[IndenterEpisodeSpec], url: str, storage: str, workers: int,
     finally:
         if started_here:
             ray.shutdown()
+
+
+def run_specs(produce: Callable[..., R], specs: Iterable[S], args: tuple[Any, ...], *, workers: int = 1,
+              executor: str = "local", ray_address: str | None = None) -> Iterator[tuple[S, R | BaseException]]:
+    """``produce(spec, *args)`` for every spec on the chosen executor, yielding (spec, result or exception)
+    as each finishes. ``produce`` must be a module-level function (it is pickled to the workers)."""
+    if executor == "ray":
+        return _ray(produce, specs, args, workers, ray_address)
+    return _local(produce, specs, args, workers)
 
 
 def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hdf5", workers: int = 1,
@@ -154,8 +182,8 @@ def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hd
     start = time.perf_counter()
     bar = tqdm(total=len(specs), initial=summary.skipped_existing, unit="episode", desc="generate",
                disable=not progress, file=sys.stderr, dynamic_ncols=True)
-    stream = (_ray(todo, url, storage, workers, ray_address, compression_level) if executor == "ray"
-              else _local(todo, url, storage, workers, compression_level))
+    stream = run_specs(produce_indenter_episode, todo, (url, storage, compression_level), workers=workers,
+                       executor=executor, ray_address=ray_address)
     try:
         for spec, result in stream:
             if isinstance(result, BaseException):

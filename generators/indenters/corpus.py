@@ -127,7 +127,7 @@ def run_indenter_episode(spec: IndenterEpisodeSpec) -> Episode:
     })
     return build_episode(sim.frames, sim.pixel_arrays(), episode_id=spec.episode_id, kind="indenter", name=spec.shape,
                          sensor=spec.sensor, seed=spec.seed, generator=generator, success=None,
-                         rate_hz=spec.record_rate_hz, object_name=OBJECT_NAME, primitive_names=PRIMITIVE_NAMES,
+                         rate_hz=spec.record_rate_hz, primitive_names=PRIMITIVE_NAMES,
                          reference_rgb=sim.reference_rgb())
 
 

@@ -52,6 +52,11 @@ class FrameStack:
         self._row_given = False
         self.frames += 1
 
+    def clear(self) -> None:
+        """Forget the frames but keep the memory: the next frame goes to row 0."""
+        self._row_given = False
+        self.frames = 0
+
     def append(self, frame: np.ndarray) -> None:
         self.next_row(frame.shape, frame.dtype)[...] = frame
         self.commit()

@@ -1,7 +1,11 @@
 """A floating parallel gripper with one visuo-tactile sensor per finger, as MJCF pieces.
 
-The gripper base is a mocap body: its 6-DoF pose is commanded directly (a policy acts in end-effector space;
-no arm is modelled because no indenter episode or task needs its dynamics). Two fingers ride on slide
+Two mounts (``GripperParams.mount``). ``"mocap"``: the gripper base is a mocap body whose 6-DoF pose is
+commanded directly; enough to press and shear a fixed indenter. ``"welded"``: the base is a free body with
+gravity compensation, welded by a soft equality constraint to a mocap target that carries the command.
+Tasks need this one: a mocap body has no velocity in the solver, so pad friction never drags a held object
+and nothing can be carried (../shared/design/scenes-and-tasks.md, "MuJoCo contact ... measured"). Either
+way a policy acts in end-effector space and no arm is modelled. Two fingers ride on slide
 joints driven by position servos. Each finger carries a rigid gel pad the size of the sensor's gel; the gel's
 elastic response is computed after the step by the tactile module, from the pad's penetration. Finger links
 and sensor cases are visual only (they never touch anything in these scenes), which keeps the contact set to
@@ -15,6 +19,7 @@ along -z). Gel-pad-centre frames: +z the pad normal toward the other pad, +x hor
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from univtac_data.schema.sensors import SensorProfile
 
@@ -38,6 +43,14 @@ class GripperParams:
     pad_solref: tuple[float, float] = (-1500.0, -230.0)
     pad_solimp: tuple[float, float, float] = (0.5, 0.5, 0.001)
     pad_friction: float = 1.0
+    # Torsional friction of the pads, m: a flat gel patch of length L holding a line contact resists a twist
+    # about its normal with about mu * N * L / 4 (L ~ 25 mm); MuJoCo's default of 0.005 m is that order.
+    pad_torsional_friction_m: float = 0.005
+    mount: Literal["mocap", "welded"] = "mocap"
+    # Weld of the free gripper to its mocap target (direct time constant, s, and damping ratio): 0.01-0.02 s
+    # carries a held object through friction; 0.002-0.004 s explodes at 1 ms and 0.05 s is too soft to push.
+    weld_solref: tuple[float, float] = (0.01, 1.0)
+    gripper_mass_kg: float = 0.6  # the free base (palm); gravity-compensated, it only sets the weld's inertia
 
 
 def _pad_axes(pad: str) -> str:
@@ -51,17 +64,18 @@ def gripper_body_xml(profile: SensorProfile, params: GripperParams, pos: tuple[f
     half_w, half_h = profile.gel_width_mm / 2000, profile.gel_height_mm / 2000
     solref = " ".join(map(str, params.pad_solref))
     solimp = " ".join(map(str, params.pad_solimp))
+    grav = ' gravcomp="1"' if params.mount == "welded" else ""
     fingers = []
     for pad, sign in (("left", -1), ("right", 1)):
         x0 = sign * MAX_OPENING_M / 2
         axis = -sign
         fingers.append(f"""
-      <body name="{pad}_finger" pos="{x0} 0 0">
+      <body name="{pad}_finger" pos="{x0} 0 0"{grav}>
         <joint name="{pad}_slide" type="slide" axis="{axis} 0 0" range="0 {FINGER_TRAVEL_M}"
                damping="{params.finger_damping_ns_per_m}" limited="true"/>
         <inertial pos="{sign * 0.01} 0 0.02" mass="{params.finger_mass_kg}" diaginertia="1e-5 1e-5 1e-5"/>
         <geom name="{pad}_gel" type="box" pos="{sign * t / 2} 0 0" xyaxes="{_pad_axes(pad)}"
-              size="{half_w} {half_h} {t / 2}" rgba="0.85 0.85 0.8 1" friction="{params.pad_friction} 0.005 0.0001"
+              size="{half_w} {half_h} {t / 2}" rgba="0.85 0.85 0.8 1" friction="{params.pad_friction} {params.pad_torsional_friction_m} 0.0001"
               solref="{solref}" solimp="{solimp}" solmix="1000" condim="4"/>
         <geom name="{pad}_case" type="box" pos="{sign * (t + 0.012)} 0 0" size="0.012 0.016 0.014"
               rgba="0.2 0.2 0.22 1" contype="0" conaffinity="0"/>
@@ -69,12 +83,29 @@ def gripper_body_xml(profile: SensorProfile, params: GripperParams, pos: tuple[f
               rgba="0.6 0.6 0.65 1" contype="0" conaffinity="0"/>
         <site name="{pad}_pad" pos="0 0 0" xyaxes="{_pad_axes(pad)}" size="0.001"/>
       </body>""")
-    return f"""
-    <body name="gripper" mocap="true" pos="{pos[0]} {pos[1]} {pos[2]}">
+    palm = f"""
       <geom name="palm" type="box" pos="0 0 0.075" size="0.05 0.02 0.006" rgba="0.3 0.3 0.35 1"
             contype="0" conaffinity="0"/>
-      <site name="ee" pos="0 0 0" size="0.002"/>{''.join(fingers)}
+      <site name="ee" pos="0 0 0" size="0.002"/>{''.join(fingers)}"""
+    x, y, z = pos
+    if params.mount == "mocap":
+        return f"""
+    <body name="gripper" mocap="true" pos="{x} {y} {z}">{palm}
     </body>"""
+    return f"""
+    <body name="gripper_target" mocap="true" pos="{x} {y} {z}"/>
+    <body name="gripper" pos="{x} {y} {z}" gravcomp="1">
+      <freejoint name="gripper_free"/>
+      <inertial pos="0 0 0.05" mass="{params.gripper_mass_kg}" diaginertia="2e-3 2e-3 2e-3"/>{palm}
+    </body>"""
+
+
+def gripper_equality_xml(params: GripperParams) -> str:
+    """The weld of a ``"welded"`` gripper to its mocap target (empty for the mocap mount)."""
+    if params.mount == "mocap":
+        return ""
+    solref = " ".join(map(str, params.weld_solref))
+    return f'<weld name="gripper_weld" body1="gripper" body2="gripper_target" solref="{solref}"/>'
 
 
 def gripper_actuator_xml(params: GripperParams) -> str:

@@ -3,27 +3,34 @@
 The class owns the MuJoCo model/data, the commanded set-points (end-effector pose, gel opening) and the
 per-pad tactile state; primitives (``primitives.py``) drive it through ``tick``. Physics runs at the model's
 timestep; the controller ticks every ``control_period_steps`` physics steps; after ``start_recording()`` a
-frame is recorded every ``1 / record_rate_hz`` s. Everything is deterministic for a given model and command sequence.
+frame is recorded every ``1 / record_rate_hz`` s, or, with ``record_rate_hz=None``, whenever the caller asks
+(``record_frame()``: the task environments record once per policy step). Recording reads the state and never
+changes it, so the physics is the same with or without recording, cameras or tactile images. Everything is
+deterministic for a given model and command sequence.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Literal
 
 import mujoco
 import numpy as np
 
+from univtac_data.generators.scene.cameras import CameraRig, CameraSpec
 from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS, FrameStack
 from univtac_data.generators.scene.geometry import mat_to_quat, relative_pose
 from univtac_data.generators.scene.gripper import FINGER_TRAVEL_M, PADS, finger_pos_to_opening, opening_to_finger_pos
+from univtac_data.generators.scene.texture import CylinderGrooves, add_cylinder_grooves
+from univtac_data.generators.scene.touch import TouchReading, read_touch
 from univtac_data.generators.tactile import (
     ContactConfig,
     ContactState,
     GapFieldBuffer,
     GelModel,
+    PadPose,
     PixelBuffers,
     TactileConfig,
     gap_field,
@@ -99,22 +106,45 @@ class RecordedFrame:
     ee_setpoint: np.ndarray
     opening_setpoint_m: float
     primitive: int
-    object_world: np.ndarray
+    objects_world: dict[str, np.ndarray]
     tactile: dict[str, PadRecord]
     object_in_pad: dict[str, np.ndarray]
     pad_world: dict[str, np.ndarray]
 
 
+@dataclass(frozen=True)
+class GeomTexture:
+    """Grooves on a cylinder geom that only the tactile gap field sees (``texture.py``)."""
+
+    geom: str
+    grooves: CylinderGrooves = field(default_factory=CylinderGrooves)
+
+
 class GripperSim:
-    """A scene, its gripper set-points, and the frames recorded so far."""
+    """A scene, its gripper set-points, and the frames recorded so far.
+
+    ``objects``: the bodies whose world poses are recorded (``scene/objects/{name}/pose``); the first is
+    the tactile object, whose pose in each pad frame is recorded too. ``pad_geoms``: per pad, the geoms its
+    gap field sees. ``cameras``: scene cameras recorded with every frame. ``textures``: tactile-only grooves.
+    """
 
     def __init__(self, model: mujoco.MjModel, profile: SensorProfile, pad_geoms: dict[str, list[str]],
-                 object_body: str, primitive_names: list[str], config: SimConfig | None = None) -> None:
+                 objects: str | Sequence[str], primitive_names: list[str], config: SimConfig | None = None, *,
+                 cameras: Sequence[CameraSpec] = (), textures: Sequence[GeomTexture] = ()) -> None:
         self.model, self.data = model, mujoco.MjData(model)
         self.profile = profile
         self.config = config or SimConfig()
         self.pad_geoms = pad_geoms
-        self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, object_body)
+        self.object_names = [objects] if isinstance(objects, str) else list(objects)
+        self._object_ids = {name: model.body(name).id for name in self.object_names}
+        self.object_body = self._object_ids[self.object_names[0]]
+        self.camera_specs = list(cameras)
+        self._rig = CameraRig(model, self.camera_specs) if self.camera_specs else None
+        self._textures = [(model.geom(t.geom).id, t.grooves) for t in textures]
+        for gid, _ in self._textures:
+            if model.geom_type[gid] != mujoco.mjtGeom.mjGEOM_CYLINDER:
+                raise ValueError(f"grooves are modelled on cylinder geoms only ({model.geom(gid).name})")
+        self._touch_buffers = {pad: GapFieldBuffer(sensor_grid(profile, 1).shape) for pad in PADS}
         self.primitive_names = primitive_names
         self.primitive = -1
         self.frames: list[RecordedFrame] = []
@@ -148,11 +178,33 @@ class GripperSim:
         self._next_record_s = math.inf  # nothing is recorded before start_recording()
 
     def start_recording(self) -> None:
-        """Record from now on (frame 0 = the next tick), forgetting any earlier frames."""
+        """Record from now on (frame 0 = the next tick, or the next ``record_frame()``), forgetting any
+        earlier frames."""
         self.frames.clear()
         capacity = self.config.max_frames or 64
         self.pixels = {f"tactile/{pad}/{name}": FrameStack(capacity) for pad in PADS for name in PIXEL_FIELDS}
+        for cam in self.camera_specs:
+            self.pixels[f"scene/cameras/{cam.name}/rgb"] = FrameStack(capacity)
         self._record_origin_s = self._next_record_s = self.time_s
+
+    def forget_frames(self) -> None:
+        """Drop the recorded frames but keep the buffers and the recording clock (an environment that only
+        needs its latest observation records one frame a step into the same memory)."""
+        self.frames.clear()
+        for stack in self.pixels.values():
+            stack.clear()
+
+    def record_frame(self) -> RecordedFrame:
+        """Record the current state as the next frame now (tactile fields, cameras, poses) and return it."""
+        if self.config.max_frames is not None and len(self.frames) >= self.config.max_frames:
+            raise FrameBudgetReached
+        self._record()
+        return self.frames[-1]
+
+    def close(self) -> None:
+        """Free the camera renderers (the OpenGL contexts)."""
+        if self._rig is not None:
+            self._rig.close()
 
     @property
     def opening_setpoint_m(self) -> float:
@@ -185,6 +237,29 @@ class GripperSim:
     def ee_pose(self) -> np.ndarray:
         return np.concatenate([self.data.site_xpos[self._ee_site],
                                mat_to_quat(self.data.site_xmat[self._ee_site].reshape(3, 3))])
+
+    def touch(self) -> dict[str, TouchReading]:
+        """What each pad feels now (``touch.read_touch``: contact patch, centroid, direction, depth, fill),
+        from the same gap field, grooves included, that the tactile images are made from."""
+        out = {}
+        grid = self._grid
+        for pad in PADS:
+            field_buffer = self._touch_buffers[pad]
+            pose = pad_pose(self.model, self.data, f"{pad}_pad")
+            gap = gap_field(self.model, self.data, pose, self.pad_geoms[pad], grid, cutoff_mm=1.0, out=field_buffer)
+            self._apply_textures(gap, field_buffer.box, pose)
+            out[pad] = read_touch(gap, grid, field_buffer.box)
+        return out
+
+    def _apply_textures(self, gap: np.ndarray, box: tuple[slice, slice], pose: PadPose) -> None:
+        for gid, grooves in self._textures:
+            add_cylinder_grooves(gap, box, self._grid, pose, self.data.geom_xpos[gid],
+                                 self.data.geom_xmat[gid].reshape(3, 3), float(self.model.geom_size[gid][0]), grooves)
+
+    def object_pose(self, name: str) -> np.ndarray:
+        """(7,) world pose of a recorded object now: x, y, z (m), quaternion w, x, y, z."""
+        body = self._object_ids[name]
+        return np.concatenate([self.data.xpos[body], mat_to_quat(self.data.xmat[body].reshape(3, 3))])
 
     def gap_mm(self) -> dict[str, float]:
         """Signed distance between each gel pad and the object now, mm: negative is the indentation the
@@ -225,8 +300,10 @@ class GripperSim:
             pad_pos, pad_mat = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
             rel = relative_pose(pad_pos, pad_mat, obj_pos, obj_mat)
             field = self._gap_buffers[pad]
-            gap = gap_field(model, data, pad_pose(model, data, f"{pad}_pad"), self.pad_geoms[pad], self._grid,
-                            cutoff_mm=self._gap_cutoff_mm, out=field)
+            pose = pad_pose(model, data, f"{pad}_pad")
+            gap = gap_field(model, data, pose, self.pad_geoms[pad], self._grid, cutoff_mm=self._gap_cutoff_mm, out=field)
+            if self._textures:
+                self._apply_textures(gap, field.box, pose)
             near = gap[field.box]
             touching = bool(near.size) and float(near.min()) < 0.0
             tangential_mm, twist_rad = self._motion_since_onset(pad, touching, pad_pos, pad_mat, obj_pos, obj_mat)
@@ -244,16 +321,23 @@ class GripperSim:
                                      frame.shear_force_n, float(frame.slip_mm))
             in_pad[pad] = rel
             pad_world[pad] = np.concatenate([pad_pos, mat_to_quat(pad_mat)])
+        if self._rig is not None:
+            for cam in self.camera_specs:
+                stack = self.pixels[f"scene/cameras/{cam.name}/rgb"]
+                self._rig.render(data, cam, out=stack.next_row((cam.height_px, cam.width_px, 3), np.uint8))
+                stack.commit()
+        objects_world = {name: np.concatenate([data.xpos[body], mat_to_quat(data.xmat[body].reshape(3, 3))])
+                         for name, body in self._object_ids.items()}
         recorded = RecordedFrame(
             time_s=self.time_s - self._record_origin_s, ee_pose=self.ee_pose(), opening_m=self.opening_m,
             finger_pos_m=data.qpos[self._slides].astype(np.float32).copy(), ee_setpoint=self.ee_setpoint.copy(),
             opening_setpoint_m=self.opening_setpoint_m, primitive=self.primitive,
-            object_world=np.concatenate([obj_pos, mat_to_quat(obj_mat)]), tactile=tactile, object_in_pad=in_pad,
+            objects_world=objects_world, tactile=tactile, object_in_pad=in_pad,
             pad_world=pad_world,
         )
         self.frames.append(recorded)
-        assert self.config.record_rate_hz is not None
-        self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
+        if self.config.record_rate_hz is not None:
+            self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
 
     def _motion_since_onset(self, pad: str, touching: bool, pad_pos: np.ndarray, pad_mat: np.ndarray,
                             obj_pos: np.ndarray, obj_mat: np.ndarray) -> tuple[tuple[float, float], float]:

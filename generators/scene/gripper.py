@@ -92,11 +92,13 @@ def gripper_body_xml(profile: SensorProfile, params: GripperParams, pos: tuple[f
         return f"""
     <body name="gripper" mocap="true" pos="{x} {y} {z}">{palm}
     </body>"""
+    # the wrist camera rides on the palm, behind the fingers, looking down between them
     return f"""
     <body name="gripper_target" mocap="true" pos="{x} {y} {z}"/>
     <body name="gripper" pos="{x} {y} {z}" gravcomp="1">
       <freejoint name="gripper_free"/>
       <inertial pos="0 0 0.05" mass="{params.gripper_mass_kg}" diaginertia="2e-3 2e-3 2e-3"/>{palm}
+      <camera name="wrist" pos="0 -0.07 0.11" xyaxes="1 0 0 0 0.8 0.6" fovy="70"/>
     </body>"""
 
 

@@ -30,10 +30,11 @@ class TouchReading:
     max_depth_mm: float
     fill: float  # contact cells over the cells of the patch's oriented bounding box, 0..1
     length_mm: float  # extent of the patch along its long axis, mm
+    span_x_mm: float  # extent of the patch along the pad's x, mm
 
     @staticmethod
     def none() -> TouchReading:
-        return TouchReading(False, 0.0, (0.0, 0.0), 0.0, 1.0, 0.0, 0.0, 0.0)
+        return TouchReading(False, 0.0, (0.0, 0.0), 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def read_touch(gap_mm: np.ndarray, grid: SensorGrid, box: tuple[slice, slice] | None = None) -> TouchReading:
@@ -63,7 +64,9 @@ def read_touch(gap_mm: np.ndarray, grid: SensorGrid, box: tuple[slice, slice] | 
     width = float(across.max() - across.min()) + math.sqrt(cell)
     fill = min(1.0, count * cell / (length * width))
     elongation = math.sqrt(max(values[1], 1e-12) / max(values[0], 1e-12))
-    return TouchReading(True, count * cell, (cx, cy), angle, elongation, float(-window[inside].min()), fill, length)
+    span_x = float(xs.max() - xs.min()) + grid.dx_mm
+    return TouchReading(True, count * cell, (cx, cy), angle, elongation, float(-window[inside].min()), fill, length,
+                        span_x)
 
 
 __all__ = ["TouchReading", "read_touch"]

@@ -175,6 +175,7 @@ class ExpertContext:
         self.layout: dict[str, Any] = session.layout
         self.target = session.last_action.copy()
         self.memory: dict[str, Any] = {"corrections": []}
+        self.corrections_enabled = True  # False: the expert skips its corrections (to measure their worth)
 
     def touch(self) -> dict[str, TouchReading]:
         return self._session.sim.touch()

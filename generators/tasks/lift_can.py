@@ -107,7 +107,6 @@ class LiftCan(Task):
         return f"""<mujoco model="lift_can">
   <compiler angle="radian" autolimits="true"/>
   {TASK_OPTION_XML}
-  <visual><global offwidth="640" offheight="480"/></visual>
   <asset>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.84" rgb2="0.74 0.74 0.77" width="256" height="256"/>
     <material name="table" texture="grid" texrepeat="8 8"/>
@@ -155,7 +154,7 @@ class LiftCan(Task):
             if not (touch["left"].touching and touch["right"].touching):
                 break
             angle = squareness_from_touch(touch["left"], touch["right"], self.profile.gel_width_mm)
-            if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt == 2:
+            if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt == 2 or not ctx.corrections_enabled:
                 break
             ctx.correction("grasp squareness", "contact patch depth gradient and centroid along the can",
                            angle_deg=math.degrees(angle), patch_span_mm=touch["left"].span_x_mm)

@@ -1,4 +1,4 @@
-"""``univtac-data generate indenters``: make the encoder-pretraining corpus."""
+"""``univtac-data generate indenters|task``: make the encoder-pretraining corpus or expert task demonstrations."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ DEFAULT_OUT = "out/indenters"
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("generate", help="generate a dataset (indenters: the encoder corpus)")
+    parser = subparsers.add_parser("generate", help="generate a dataset (indenters: the encoder corpus; task: expert demonstrations)")
     kinds = parser.add_subparsers(dest="kind", metavar="KIND", required=True)
     ind = kinds.add_parser(
         "indenters", help="a gripper pressing, twisting and shifting against the 14 indenters",
@@ -43,7 +43,90 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     ind.add_argument("--compression-level", type=int, default=None, metavar="1-9",
                      help="Blosc-Zstandard level of the episode files, 1 (fastest) to 9 (smallest); readers need "
                           "not know it (default: 1 for geometric, 3 for elastic contact)")
+    task = kinds.add_parser(
+        "task", help="expert demonstrations of a benchmark task (lift_can, ...), successful ones kept",
+        description="Run a task's scripted expert on seed after seed (from --seed) and keep the successful, safe "
+                    "episodes until --episodes are there; reports the seeds tried and the expert's success rate. "
+                    "Rerun the same command to resume after an interruption.",
+        epilog="example: univtac-data generate task lift_can --episodes 10 --out out/lift_can --no-cameras",
+    )
+    task.add_argument("name", metavar="NAME", help="task name, or 'all' (univtac_data.generators.tasks.registry)")
+    task.add_argument("--episodes", type=int, default=5, help="successful episodes wanted per task (default 5)")
+    task.add_argument("--out", default=None, help="dataset directory or URL (default out/tasks)")
+    task.add_argument("--sensor", default="gelsight_mini", choices=list(SENSORS), help="sensor model (default gelsight_mini)")
+    task.add_argument("--contact", choices=("geometric", "elastic"), default="geometric",
+                      help="tactile contact model of the images (default geometric)")
+    task.add_argument("--rate", type=float, default=50.0,
+                      help="policy steps and recorded frames per second; a whole number of 2 ms ticks (default 50)")
+    task.add_argument("--seed", type=int, default=0, help="first seed tried; seeds go up by one (default 0)")
+    task.add_argument("--camera-size", default="480x270", metavar="WxH", help="head and wrist camera size (default 480x270)")
+    task.add_argument("--no-cameras", action="store_true", help="record no camera images (much faster)")
+    task.add_argument("--keep-failures", action="store_true",
+                      help="keep failed or unsafe episodes too, flagged (success false); they do not count")
+    task.add_argument("--max-seeds", type=int, default=None, help="give up after this many seeds (default 20 x episodes)")
+    task.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
+    task.add_argument("--workers", type=int, default=None, help="parallel workers (default: the CPU count)")
+    task.add_argument("--executor", choices=("local", "ray"), default="local", help="a local process pool, or Ray tasks")
+    task.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
+    task.add_argument("--compression-level", type=int, default=1, metavar="1-9",
+                      help="Blosc-Zstandard level of the episode files (default 1)")
     return parser
+
+
+def _camera_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise DatasetError(f"--camera-size must be WxH in pixels, e.g. 480x270 (got {text!r})") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise DatasetError(f"--camera-size must be between 16 and 4096 px a side (got {text!r})")
+    return w, h
+
+
+def run_task(args: argparse.Namespace) -> int:
+    from univtac_data.generators.runner import default_workers
+    from univtac_data.generators.tasks.base import TaskConfig
+    from univtac_data.generators.tasks.collect import collect
+    from univtac_data.generators.tasks.registry import TASK_NAMES, UnknownTaskError, task_class
+    from univtac_data.storage.encoding import ZSTD_LEVELS
+
+    names = list(TASK_NAMES) if args.name == "all" else [args.name]
+    try:
+        for name in names:
+            task_class(name)
+    except UnknownTaskError as error:
+        raise DatasetError(str(error)) from None
+    if args.episodes < 1:
+        raise DatasetError(f"--episodes must be at least 1 (got {args.episodes})")
+    if args.compression_level not in ZSTD_LEVELS:
+        raise DatasetError(f"--compression-level must be {ZSTD_LEVELS.start} to {ZSTD_LEVELS.stop - 1} "
+                           f"(got {args.compression_level})")
+    try:
+        config = TaskConfig(sensor=args.sensor, contact_method=args.contact, rate_hz=args.rate,
+                            cameras=not args.no_cameras, camera_size=_camera_size(args.camera_size))
+        config.ticks_per_step  # noqa: B018  (refuses a rate that is not a whole number of ticks)
+    except ValueError as error:
+        raise DatasetError(f"--rate: {error}") from None
+    out = args.out or "out/tasks"
+    workers = args.workers if args.workers is not None else default_workers()
+    status = 0
+    for name in names:
+        summary = collect(out, name, args.episodes, config=config, base_seed=args.seed, storage=args.format,
+                          workers=workers, executor=args.executor, ray_address=args.ray_address,
+                          keep_failures=args.keep_failures, compression_level=args.compression_level,
+                          max_seeds=args.max_seeds, progress=sys.stderr.isatty())
+        have = summary.already + summary.kept
+        print(f"{out}: {name}: {have} of {args.episodes} successful episodes; this run tried {summary.tried} seeds, "
+              f"kept {summary.kept} (expert success {summary.success_rate:.0%}), {summary.frames} frames in "
+              f"{summary.elapsed_s:.1f} s")
+        if summary.failed_seeds:
+            print(f"{name}: seeds without a kept success: {', '.join(map(str, summary.failed_seeds[:20]))}"
+                  + (" ..." if len(summary.failed_seeds) > 20 else ""))
+        for line in summary.errors:
+            print(f"error: {name}: {line}", file=sys.stderr)
+        if have < args.episodes or summary.errors:
+            status = 1
+    return status
 
 
 def _shape_list(text: str) -> list[str]:
@@ -60,6 +143,8 @@ def _shape_list(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.kind == "task":
+        return run_task(args)
     from univtac_data.generators.indenters.corpus import corpus_specs
     from univtac_data.generators.runner import default_workers, run_corpus
 

@@ -7,6 +7,8 @@ from univtac_data.storage.dataset import (
     DatasetWriter,
     ReindexReport,
     WrittenEpisode,
+    discard_staged,
+    publish_staged,
     write_episode_file,
 )
 from univtac_data.storage.errors import (
@@ -22,5 +24,5 @@ from univtac_data.storage.fs import Location
 __all__ = [
     "STORES", "CorruptFileError", "Dataset", "DatasetError", "DatasetNotFoundError", "DatasetWriter",
     "EpisodeExistsError", "EpisodeHandle", "EpisodeStore", "FormatVersionError", "Location", "NotADatasetError",
-    "ReindexReport", "WrittenEpisode", "write_episode_file",
+    "ReindexReport", "WrittenEpisode", "discard_staged", "publish_staged", "write_episode_file",
 ]

@@ -99,6 +99,7 @@ class WrittenEpisode:
 
     row: IndexRow
     files: dict[str, ManifestEntry]
+    staged: str | None = None  # relative path of a file written but not yet published (``publish=False``)
 
 
 def _hash_files(loc: Location, tmp_rel: str, final_rel: str, episode_id: str) -> dict[str, ManifestEntry]:
@@ -125,12 +126,14 @@ def _publish(loc: Location, tmp_rel: str, final_rel: str) -> None:
 
 
 def write_episode_file(loc: Location, storage: str, episode: Episode, *,
-                       compression_level: int = ZSTD_LEVEL) -> WrittenEpisode:
+                       compression_level: int = ZSTD_LEVEL, publish: bool = True) -> WrittenEpisode:
     """Check ``episode`` against the spec, write it atomically, and return its index row and checksums.
     ``compression_level``: Blosc level 1 (fastest) to 9 (smallest); readers need not know it.
 
     Safe to call from worker processes in parallel (distinct episode ids); the caller commits the result
-    with ``DatasetWriter.commit``.
+    with ``DatasetWriter.commit``. ``publish=False`` leaves the file under its temporary name (which a
+    reopening writer removes) for the caller to ``publish_staged`` or ``discard_staged``: a collector that
+    keeps only some of what its workers made decides in a fixed order, whatever order they finish in.
     """
     if compression_level not in ZSTD_LEVELS:
         raise ValueError(f"compression level must be {ZSTD_LEVELS.start} to {ZSTD_LEVELS.stop - 1} "
@@ -147,11 +150,30 @@ def write_episode_file(loc: Location, storage: str, episode: Episode, *,
     try:
         store.write(episode, loc, tmp_rel, compression_level)
         files = _hash_files(loc, tmp_rel, final_rel, episode_id)
-        _publish(loc, tmp_rel, final_rel)
+        if publish:
+            _publish(loc, tmp_rel, final_rel)
     except BaseException:
         loc.remove(tmp_rel)
         raise
-    return WrittenEpisode(row=index_row(episode_id, final_rel, episode, files), files=files)
+    return WrittenEpisode(row=index_row(episode_id, final_rel, episode, files), files=files,
+                          staged=None if publish else tmp_rel)
+
+
+def publish_staged(loc: Location, written: WrittenEpisode) -> WrittenEpisode:
+    """Make an episode written with ``publish=False`` visible under its final name (then ``commit`` it)."""
+    if written.staged is None:
+        return written
+    if loc.exists(written.row.path):
+        loc.remove(written.staged)
+        raise EpisodeExistsError(f"{loc.url_of(written.row.path)}: episode {written.row.episode_id} already exists")
+    _publish(loc, written.staged, written.row.path)
+    return WrittenEpisode(row=written.row, files=written.files)
+
+
+def discard_staged(loc: Location, written: WrittenEpisode) -> None:
+    """Remove an episode written with ``publish=False`` that will not be kept."""
+    if written.staged is not None:
+        loc.remove(written.staged)
 
 
 class Dataset:

@@ -1,0 +1,33 @@
+"""The tasks by name: what the CLI, the collector and the Gymnasium environments can make."""
+
+from __future__ import annotations
+
+from univtac_data.generators.tasks.base import Task, TaskConfig
+from univtac_data.generators.tasks.lift_can import LiftCan
+from univtac_data.schema.sensors import get_sensor
+
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan,)}
+TASK_NAMES: tuple[str, ...] = tuple(TASKS)
+
+
+class UnknownTaskError(KeyError):
+    """A task name that is not registered; the message lists the known ones."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+def task_class(name: str) -> type[Task]:
+    """The task registered as ``name`` (e.g. 'lift_can')."""
+    try:
+        return TASKS[name]
+    except KeyError:
+        raise UnknownTaskError(f"unknown task {name!r}; known: {', '.join(TASK_NAMES)}") from None
+
+
+def make_task(name: str, config: TaskConfig | None = None) -> Task:
+    config = config or TaskConfig()
+    return task_class(name)(config, get_sensor(config.sensor))
+
+
+__all__ = ["TASKS", "TASK_NAMES", "UnknownTaskError", "make_task", "task_class"]

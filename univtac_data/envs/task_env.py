@@ -92,7 +92,7 @@ class TaskEnv(gym.Env[dict[str, Any], np.ndarray]):
         return self._observation(), self._info(self.task.success(state))
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
-        target = self._absolute(np.asarray(action, dtype=np.float64))
+        target = self.session.bounds.check(self._absolute(np.asarray(action, dtype=np.float64)))
         sim = self.session.sim
         assert sim is not None
         sim.forget_frames()  # only the newest observation is kept

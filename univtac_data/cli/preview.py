@@ -3,6 +3,7 @@
     univtac-data preview PATH --out FILE.png [--episode ID] [--frames K] [--pad left|right]
     univtac-data preview PATH --gallery --out FILE.png [--max-episodes N]
     univtac-data preview --sensor gelsight_mini --demo sphere --out FILE.png [--method elastic] [--depth MM]
+    univtac-data preview PATH --video OUT.mp4 [--rerun FILE.rrd] [--episode ID]
 """
 
 from __future__ import annotations
@@ -23,7 +24,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "episode, or of a demo indenter pressed into a sensor",
     )
     parser.add_argument("path", nargs="?", help="dataset directory or fsspec URL (omit with --demo)")
-    parser.add_argument("--out", required=True, help="PNG file to write")
+    parser.add_argument("--out", help="PNG file to write (a contact sheet)")
+    parser.add_argument("--video", metavar="OUT.mp4",
+                        help="write the episode as an MP4: scene cameras, both pads' I_marked and depth maps, with "
+                             "the primitive and normal forces as text (needs the [video] extra)")
+    parser.add_argument("--rerun", metavar="FILE.rrd",
+                        help="log the episode for the Rerun viewer: images, depth, markers as points, poses as "
+                             "transforms (needs the [rerun] extra; open with `rerun FILE.rrd`)")
     parser.add_argument("--episode", help="episode id (default: the first)")
     parser.add_argument("--frames", type=int, default=4, help="frames shown, evenly spaced (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
@@ -101,8 +108,74 @@ def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarr
     return tiles, f"{path}: {shown} of {len(dataset)} episodes, I_marked at each episode's deepest press"
 
 
+def _write_atomic(out: str, suffix: str, write: Any) -> Any:
+    """Run ``write(tmp)`` into a temporary file beside ``out``, then rename it to ``out`` (no half file)."""
+    import os
+
+    target = os.path.abspath(out)
+    folder = os.path.dirname(target)
+    if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+        raise DatasetError(f"{out}: cannot write there (no such folder, or not writable)")
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{os.path.basename(target)}")
+    if not tmp.endswith(suffix):
+        tmp += suffix
+    try:
+        result = write(tmp)
+        os.replace(tmp, target)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return result
+
+
+def _episode_views(args: argparse.Namespace) -> int:
+    """``--video`` and ``--rerun``: one episode, whole."""
+    from univtac_data.export.video import require_av
+
+    if args.gallery or args.demo is not None or args.sensor is not None:
+        raise DatasetError("--video and --rerun show one dataset episode; they do not combine with --gallery, "
+                           "--sensor or --demo")
+    if args.path is None:
+        raise DatasetError("preview --video/--rerun: give a dataset PATH")
+    if args.video:
+        require_av()
+    if args.rerun:
+        from univtac_data.export.rerun_log import require_rerun
+
+        require_rerun()
+    dataset = Dataset.open(args.path)
+    ids = dataset.episode_ids
+    if not ids:
+        raise DatasetError(f"{args.path}: the dataset has no episodes")
+    episode_id = args.episode if args.episode is not None else ids[0]
+    if episode_id not in ids:
+        raise DatasetError(f"{args.path}: no episode {episode_id!r} (episodes: {', '.join(ids[:5])}"
+                           f"{'...' if len(ids) > 5 else ''})")
+    with dataset.open_episode(episode_id) as handle:
+        if args.video:
+            from univtac_data.export.episode_video import write_episode_video
+
+            n, width, height = _write_atomic(args.video, ".mp4", lambda tmp: write_episode_video(handle, tmp))
+            print(f"wrote {args.video} ({episode_id}: {n} frames, {width} x {height})")
+        if args.rerun:
+            from univtac_data.export.rerun_log import log_episode_rrd
+
+            _write_atomic(args.rerun, ".rrd", lambda tmp: log_episode_rrd(handle, tmp))
+            print(f"wrote {args.rerun} ({episode_id}; open it with: rerun {args.rerun})")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from univtac_data.generators.tactile import contact_sheet, image_gallery
+
+    if args.video or args.rerun:
+        if args.out:
+            raise DatasetError("preview: --out writes a contact sheet; give it in a separate run from "
+                               "--video/--rerun")
+        return _episode_views(args)
+    if args.out is None:
+        raise DatasetError("preview: give --out FILE.png, --video OUT.mp4 or --rerun FILE.rrd")
 
     if args.demo is not None or args.sensor is not None:
         if args.path is not None:

@@ -81,12 +81,12 @@ def gripper_body_xml(profile: SensorProfile, params: GripperParams, pos: tuple[f
               rgba="0.2 0.2 0.22 1" contype="0" conaffinity="0"/>
         <geom name="{pad}_link" type="box" pos="{sign * (t + 0.016)} 0 0.04" size="0.006 0.01 0.03"
               rgba="0.6 0.6 0.65 1" contype="0" conaffinity="0"/>
-        <site name="{pad}_pad" pos="0 0 0" xyaxes="{_pad_axes(pad)}" size="0.001"/>
+        <site name="{pad}_pad" pos="0 0 0" xyaxes="{_pad_axes(pad)}" size="0.001" group="4"/>
       </body>""")
     palm = f"""
       <geom name="palm" type="box" pos="0 0 0.075" size="0.05 0.02 0.006" rgba="0.3 0.3 0.35 1"
             contype="0" conaffinity="0"/>
-      <site name="ee" pos="0 0 0" size="0.002"/>{''.join(fingers)}"""
+      <site name="ee" pos="0 0 0" size="0.002" group="4"/>{''.join(fingers)}"""
     x, y, z = pos
     if params.mount == "mocap":
         return f"""
@@ -98,7 +98,7 @@ def gripper_body_xml(profile: SensorProfile, params: GripperParams, pos: tuple[f
     <body name="gripper" pos="{x} {y} {z}" gravcomp="1">
       <freejoint name="gripper_free"/>
       <inertial pos="0 0 0.05" mass="{params.gripper_mass_kg}" diaginertia="2e-3 2e-3 2e-3"/>{palm}
-      <camera name="wrist" pos="0 -0.07 0.11" xyaxes="1 0 0 0 0.8 0.6" fovy="70"/>
+      <camera name="wrist" pos="0 -0.075 0.045" xyaxes="1 0 0 0 0.8 0.6" fovy="75"/>
     </body>"""
 
 

@@ -39,8 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from univtac_data.generators.scene.cameras import look_at_xyaxes
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML, PadContact
+from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
 from univtac_data.generators.scene.gripper import MAX_OPENING_M, GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
 from univtac_data.generators.scene.touch import TouchReading
@@ -107,14 +107,9 @@ class LiftCan(Task):
         return f"""<mujoco model="lift_can">
   <compiler angle="radian" autolimits="true"/>
   {TASK_OPTION_XML}
-  <asset>
-    <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.84" rgb2="0.74 0.74 0.77" width="256" height="256"/>
-    <material name="table" texture="grid" texrepeat="8 8"/>
+  <asset>{STAGE_ASSETS_XML}
   </asset>
-  <worldbody>
-    <light pos="0.3 -0.4 1.0" dir="-0.3 0.4 -1"/>
-    <light pos="-0.4 0.3 0.8" dir="0.4 -0.3 -1" diffuse="0.4 0.4 0.4"/>
-    <geom name="ground" type="plane" size="0.6 0.6 0.01" material="table" friction="0.8 0.005 0.0001"/>
+  <worldbody>{stage_xml()}
     <body name="can" pos="{layout['x_m']} {layout['y_m']} {r + 0.0005}" quat="{q}">
       <freejoint name="can_free"/>
       <geom name="can" type="cylinder" size="{r} {half}" mass="{layout['mass_kg']}" rgba="0.75 0.1 0.1 1"
@@ -123,7 +118,6 @@ class LiftCan(Task):
             contype="0" conaffinity="0" mass="0"/>
     </body>
     {gripper_body_xml(self.profile, params, (0.0, 0.0, 0.3))}
-    <camera name="head" pos="0.0 0.65 0.38" xyaxes="{look_at_xyaxes((0.0, 0.65, 0.38), (0.0, 0.0, 0.1))}" fovy="45"/>
   </worldbody>
   <contact>{PadContact().pair_xml("can")}</contact>
   <actuator>{gripper_actuator_xml(params)}</actuator>

@@ -15,7 +15,7 @@ from typing import NoReturn
 from univtac_data.storage.errors import DatasetError
 from univtac_data.version import FORMAT_VERSION, __version__
 
-SUBCOMMANDS = ("generate", "validate", "info", "convert", "reindex", "preview", "export")
+SUBCOMMANDS = ("generate", "validate", "info", "convert", "reindex", "preview", "export", "evaluate")
 
 
 def build_parser() -> argparse.ArgumentParser:

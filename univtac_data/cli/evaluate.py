@@ -1,0 +1,78 @@
+"""``univtac-data evaluate``: run a policy on a task and report its success rate."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Any
+
+from univtac_data.schema.sensors import SENSORS
+from univtac_data.storage.errors import DatasetError
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "evaluate", help="run a policy on a task: success rate with a 95 %% Wilson interval, safety, steps",
+        description="Run --episodes rollouts of a policy on evaluation seeds (1,000,000 + --seed + k; generation "
+                    "never uses them) and print the success rate with a 95 %% Wilson interval, the rate of "
+                    "tactile-safety violations and the mean number of steps. A rollout whose policy raises or "
+                    "returns a bad action counts as a failure and is reported; the evaluation goes on.",
+        epilog="examples: univtac-data evaluate lift_can --policy expert --episodes 20; "
+               "univtac-data evaluate lift_can --policy replay:out/tasks; "
+               "univtac-data evaluate lift_can --policy mypkg.policies:make_policy --json results.json",
+    )
+    parser.add_argument("name", metavar="NAME", help="task name (univtac-data generate task NAME)")
+    parser.add_argument("--policy", required=True,
+                        help="expert | zero | random | replay:DATASET | module:factory (factory() returns an object "
+                             "with reset() and act(obs) -> (8,) absolute action)")
+    parser.add_argument("--episodes", type=int, default=100, help="rollouts (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="evaluation seed offset (default 0)")
+    parser.add_argument("--sensor", default="gelsight_mini", choices=list(SENSORS))
+    parser.add_argument("--contact", choices=("geometric", "elastic"), default="geometric")
+    parser.add_argument("--camera-size", default="480x270", metavar="WxH", help="camera size (default 480x270)")
+    parser.add_argument("--no-cameras", action="store_true", help="observe no camera images (faster)")
+    parser.add_argument("--json", default=None, metavar="FILE", help="write the summary and every rollout to FILE")
+    parser.add_argument("--video", default=None, metavar="DIR",
+                        help="write MP4s of the first rollouts to DIR (head camera beside both tactile images; "
+                             "needs the [video] extra)")
+    parser.add_argument("--videos", type=int, default=3, help="how many rollouts --video records (default 3)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from univtac_data.cli.generate import _camera_size
+    from univtac_data.envs.evaluate import evaluate
+    from univtac_data.generators.tasks.registry import UnknownTaskError, task_class
+
+    try:
+        task_class(args.name)
+    except UnknownTaskError as error:
+        raise DatasetError(str(error)) from None
+    if args.episodes < 1:
+        raise DatasetError(f"--episodes must be at least 1 (got {args.episodes})")
+    if args.seed < 0:
+        raise DatasetError(f"--seed must be >= 0 (got {args.seed})")
+    if args.video is not None:
+        from univtac_data.export.video import require_av
+
+        require_av()
+    env_kwargs = {"sensor": args.sensor, "contact": args.contact, "cameras": not args.no_cameras,
+                  "camera_size": _camera_size(args.camera_size)}
+    report = evaluate(args.name, args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
+                      video_dir=args.video, videos=args.videos, progress=sys.stderr.isatty())
+    s = report.summary()
+    lo, hi = s["wilson95"]
+    print(f"{args.name} with {args.policy}: success {report.successes}/{report.n} = {s['success_rate']:.1%} "
+          f"(95 % Wilson {lo:.1%}-{hi:.1%}); unsafe {s['unsafe_rate']:.1%}; errors {s['errors']}; "
+          f"mean steps {s['mean_steps']:.1f}; {s['steps_per_s']:.1f} steps/s")
+    for r in report.rollouts:
+        if r.reason.startswith("error"):
+            print(f"rollout seed {r.seed}: {r.reason}", file=sys.stderr)
+    if args.json:
+        tmp = args.json + ".part"
+        with open(tmp, "w") as handle:
+            json.dump(report.as_json(), handle, indent=1)
+        os.replace(tmp, args.json)
+    return 0

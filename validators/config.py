@@ -61,6 +61,10 @@ class ValidationConfig(BaseModel):
         default=0.3, gt=0, description="largest distance from the gripper at which its rotation moves an object, m")
     speed_tolerance_m_s: float = Field(
         default=0.05, ge=0, description="speed an object may gain beyond the explained budget (noise), m/s")
+    # --- tasks ---------------------------------------------------------------------------------------
+    camera_blank_std_levels: float = Field(
+        default=1.0, ge=0, description="a scene camera frame whose pixel values spread less than this is blank, "
+                                       "uint8 levels")
     # --- schema: unit plausibility -------------------------------------------------------------------
     max_position_m: float = Field(
         default=10.0, gt=0,

@@ -9,7 +9,9 @@ Summaries (each a float64 array of length T, NaN at frames that could not be rea
 * ``{pad}/marked_pure_diff_px``: how many of those pixels differ by more than the tolerance;
 * ``{pad}/reference_diff_levels``: at frames with no indentation, mean |I_pure - pure_ref_rgb| over the
   image, uint8 levels (NaN at indented frames and when the episode holds no ``pure_ref_rgb``);
-* ``camera/{name}/depth_nonfinite_px``: non-finite pixels of a scene camera's depth.
+* ``camera/{name}/depth_nonfinite_px``: non-finite pixels of a scene camera's depth;
+* ``camera/{name}/rgb_std_levels``: spread (standard deviation) of a scene camera frame's pixel values, on
+  every 4th pixel of every 4th row, uint8 levels (a blank frame reads about 0).
 
 A block that fails to decode is retried frame by frame, so a damaged chunk is reported with its frames.
 """
@@ -159,6 +161,13 @@ def _marked_pure_block(ctx: EpisodeContext, pad: str, start: int, stop: int,
 
 def _camera_block(ctx: EpisodeContext, camera: str, start: int, stop: int,
                   blocks: dict[str, tuple[np.ndarray | None, np.ndarray]]) -> None:
+    rgb = blocks.get(f"scene/cameras/{camera}/rgb")
+    if rgb is not None and rgb[0] is not None:
+        key = f"camera/{camera}/rgb_std_levels"
+        spread = ctx.summaries.get(key)
+        spread = _new(ctx, key) if spread is None else spread
+        sample = rgb[0][:, ::4, ::4].reshape(stop - start, -1).astype(np.float32)
+        spread[start:stop] = np.where(rgb[1], sample.std(axis=1), np.nan)
     depth = blocks.get(f"scene/cameras/{camera}/depth_m")
     if depth is None or depth[0] is None:
         return

@@ -101,7 +101,7 @@ def rules_in(groups: Sequence[str], scope: str = "episode") -> list[Rule]:
 
 def all_rules() -> list[Rule]:
     """Every registered rule, grouped in ``GROUPS`` order, in registration order within a group."""
-    from univtac_data.validators import rules_physics, rules_safety, rules_schema, rules_tactile  # noqa: F401
+    from univtac_data.validators import rules_physics, rules_safety, rules_schema, rules_tactile, rules_task  # noqa: F401
 
     return sorted(RULES.values(), key=lambda r: GROUPS.index(r.group))
 

@@ -79,6 +79,7 @@ class TaskState:
     indentation_mm: float  # deepest pad-object overlap over both pads now, mm (>= 0)
     in_hand_slip_mm: float  # how far the held object moved in the gripper frame since both pads gripped it
     memory: dict[str, Any] = field(default_factory=dict)  # what the task's expert decided (e.g. classes)
+    layout: dict[str, Any] = field(default_factory=dict)  # the seeded randomisation (e.g. which object is which)
 
     def axis(self, name: str) -> np.ndarray:
         """(3,) the object's local +z axis in the world."""

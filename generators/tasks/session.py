@@ -178,7 +178,7 @@ class TaskSession:
             self._grip_anchor, slip = None, 0.0
         return TaskState(step=self.steps, objects=objects, initial_objects=self._initial, ee_pose=ee,
                          opening_m=sim.opening_m, indentation_mm=max(0.0, -min(gaps.values())),
-                         in_hand_slip_mm=slip, memory=memory or {})
+                         in_hand_slip_mm=slip, memory=memory or {}, layout=self.layout)
 
     @property
     def safe(self) -> bool:

@@ -17,14 +17,14 @@ from univtac_data.loaders.frame_batches import FrameBatchLoader
 from univtac_data.loaders.frames import ENCODER_TARGETS, FRAME_FIELDS, TactileFrameConfig, TactileFrameDataset, \
     to_float
 from univtac_data.loaders.normalize import Normalizer
-from univtac_data.loaders.policy import PolicyChunkConfig, PolicyChunkDataset
+from univtac_data.loaders.policy import AGENT_POS, TASK_OBS_KEYS, PolicyChunkConfig, PolicyChunkDataset
 from univtac_data.loaders.sampler import FrameTable, Window, WindowTable, window
 from univtac_data.loaders.split import split_episode_ids, split_of
 from univtac_data.loaders.stats import STATS_PATH, FieldStats, compute_stats, load_or_compute_stats
 from univtac_data.loaders.transforms import Resize
 
 __all__ = [
-    "ENCODER_TARGETS", "FRAME_FIELDS", "STATS_PATH", "EpisodeReader", "EpisodeRef", "FieldStats", "FrameBatchLoader",
+    "AGENT_POS", "TASK_OBS_KEYS", "ENCODER_TARGETS", "FRAME_FIELDS", "STATS_PATH", "EpisodeReader", "EpisodeRef", "FieldStats", "FrameBatchLoader",
     "FrameTable", "Normalizer", "PolicyChunkConfig", "PolicyChunkDataset", "Resize", "SensorBatchSampler",
     "TactileFrameConfig", "TactileFrameDataset", "Window", "WindowTable", "compute_stats", "load_or_compute_stats",
     "select_episodes", "split_episode_ids", "split_of", "to_float", "window",

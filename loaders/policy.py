@@ -43,6 +43,14 @@ Sample = dict[str, Any]
 
 DEFAULT_OBS_KEYS: tuple[str, ...] = ("robot/ee_pose", "robot/gripper_width_m", "tactile/left/marked_rgb",
                                      "tactile/right/marked_rgb")
+#: ``agent_pos``: not a stored field but the task environments' observation of the same name, (Hh, 8)
+#: float32: ``robot/ee_pose`` (x, y, z m; w, x, y, z) then ``robot/gripper_width_m`` (m), each part
+#: normalised by its own field's statistics. A policy trained on it sees what ``univtac-data evaluate`` feeds it.
+AGENT_POS = "agent_pos"
+AGENT_POS_PARTS: tuple[str, ...] = ("robot/ee_pose", "robot/gripper_width_m")
+#: What a visuo-tactile policy on task episodes observes, as the environments name it.
+TASK_OBS_KEYS: tuple[str, ...] = ("scene/cameras/head/rgb", "scene/cameras/wrist/rgb", "tactile/left/marked_rgb",
+                                  "tactile/right/marked_rgb", AGENT_POS)
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,8 @@ class PolicyChunkConfig:
         if self.normalize not in NORMALIZE_MODES:
             raise ValueError(f"normalize must be one of {', '.join(NORMALIZE_MODES)} (got {self.normalize!r})")
         for key in (*self.obs_keys, self.action_key):
+            if key == AGENT_POS and key != self.action_key:
+                continue
             spec = field_for_path(key)
             if spec is None or spec.sampling != "per_frame":
                 raise ValueError(f"observation and action keys must be per-frame array paths such as "
@@ -128,7 +138,8 @@ class PolicyChunkDataset(torch.utils.data.Dataset[Sample]):
         self.config = config
         self.transform = transform
         self.datasets, self.episodes = open_selected(paths, config)
-        require_paths(self.episodes, [*config.obs_keys, config.action_key], self.datasets)
+        stored = [part for key in config.obs_keys for part in (AGENT_POS_PARTS if key == AGENT_POS else (key,))]
+        require_paths(self.episodes, [*stored, config.action_key], self.datasets)
         self.table = WindowTable([ref.n_frames for ref in self.episodes], config.history, config.chunk)
         self.reader = EpisodeReader(self.datasets, max_open=config.max_open_episodes)
         self.dataset_stats: list[dict[str, FieldStats]] = []
@@ -167,6 +178,9 @@ class PolicyChunkDataset(torch.utils.data.Dataset[Sample]):
         return actions
 
     def _observe(self, ref: EpisodeRef, key: str, win: Window) -> torch.Tensor:
+        if key == AGENT_POS:
+            parts = [self._observe(ref, part, win) for part in AGENT_POS_PARTS]
+            return torch.cat(parts, dim=1)
         frames = win.obs_frames
         lo, hi = int(frames.min()), int(frames.max())
         # Read the covered range once (one call, consecutive chunks) and repeat padded frames in memory.

@@ -1,0 +1,173 @@
+"""Task demonstrations end to end, one core: recorded frames per CPU-second with two 480 x 270 cameras and
+without cameras, where the time goes (physics, the expert's touch readings, tactile model, cameras, writing),
+bytes per recorded frame, and ``evaluate``'s environment steps per CPU-second with cameras.
+
+    python benchmarks/task_throughput.py [--tasks all] [--seeds 3] [--passes 2]
+
+CPU seconds are the process's (``time.process_time``: all its threads, so a software-GL renderer that uses
+several threads is charged in full); stages are timed by wrapping the methods that do them. The quoted rate
+is the best pass, every pass recorded. Writes benchmarks/results/task_throughput.json and
+docs/figures/task_throughput.png.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from collections import defaultdict  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from typing import Any  # noqa: E402
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from common import FIGURES, RESULTS, machine  # noqa: E402
+
+from univtac_data.envs.evaluate import evaluate  # noqa: E402
+from univtac_data.generators.scene import cameras as cameras_module  # noqa: E402
+from univtac_data.generators.scene import sim as sim_module  # noqa: E402
+from univtac_data.generators.tasks.base import TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert  # noqa: E402
+from univtac_data.generators.tasks.registry import TASK_NAMES  # noqa: E402
+from univtac_data.storage import Location, write_episode_file  # noqa: E402
+
+STAGES = ("physics", "expert touch", "tactile", "cameras", "writing")
+
+
+class StageClock:
+    """CPU seconds spent inside wrapped methods, by stage; nested stages are subtracted from their parent."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self._stack: list[list[float]] = []
+
+    def wrap(self, owner: Any, name: str, stage: str) -> None:
+        original: Callable[..., Any] = getattr(owner, name)
+        clock = self
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            start = time.process_time()
+            clock._stack.append([0.0])
+            try:
+                return original(*args, **kwargs)
+            finally:
+                inner = clock._stack.pop()[0]
+                spent = time.process_time() - start
+                clock.seconds[stage] += spent - inner
+                if clock._stack:
+                    clock._stack[-1][0] += spent
+
+        setattr(owner, name, timed)
+
+
+def install(clock: StageClock) -> None:
+    clock.wrap(sim_module.GripperSim, "tick", "physics")
+    clock.wrap(sim_module.GripperSim, "touch", "expert touch")
+    clock.wrap(sim_module.GripperSim, "_record", "tactile")
+    clock.wrap(cameras_module.CameraRig, "render", "cameras")
+
+
+def one_row(task: str, cameras: bool, seeds: list[int], clock: StageClock, out_dir: str) -> dict[str, Any]:
+    config = TaskConfig(cameras=cameras)
+    clock.seconds.clear()
+    frames = size = 0
+    start = time.process_time()
+    wall = time.perf_counter()
+    for seed in seeds:
+        outcome = run_expert(TaskEpisodeSpec(task, seed, config))
+        assert outcome.episode is not None
+        t = time.process_time()
+        written = write_episode_file(Location.parse(out_dir), "hdf5", outcome.episode, compression_level=1)
+        clock.seconds["writing"] += time.process_time() - t
+        frames += outcome.episode.meta.n_frames
+        size += written.row.bytes
+    cpu = time.process_time() - start
+    return {"task": task, "cameras": "2 x 480x270" if cameras else "none", "frames": frames,
+            "frames_per_cpu_s": frames / cpu, "frames_per_wall_s": frames / (time.perf_counter() - wall),
+            "kib_per_frame": size / frames / 1024,
+            "ms_per_frame": {stage: 1000 * clock.seconds.get(stage, 0.0) / frames for stage in STAGES},
+            "ms_per_frame_other": 1000 * (cpu - sum(clock.seconds.values())) / frames}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tasks", default="all")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--passes", type=int, default=2)
+    parser.add_argument("--evaluate-rollouts", type=int, default=2)
+    args = parser.parse_args()
+    tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
+    clock = StageClock()
+    install(clock)
+    seeds = list(range(args.seeds))
+    # warm-up: compiled kernels and the first renderer are built once per process, not per frame
+    run_expert(TaskEpisodeSpec(tasks[0], 0, TaskConfig(camera_size=(64, 48))))
+    rows: dict[tuple[str, bool], list[dict[str, Any]]] = defaultdict(list)
+    tmp = tempfile.mkdtemp(prefix="task_bench_")
+    try:
+        for p in range(args.passes):
+            for task in tasks:
+                for cameras in (True, False):
+                    out = os.path.join(tmp, f"{task}-{cameras}-{p}")
+                    row = one_row(task, cameras, seeds, clock, out)
+                    rows[(task, cameras)].append(row)
+                    print(f"pass {p}: {task} cameras={cameras}: {row['frames_per_cpu_s']:.1f} frames/CPU-s, "
+                          f"{row['kib_per_frame']:.0f} KiB/frame", file=sys.stderr)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    best = [max(passes, key=lambda r: r["frames_per_cpu_s"]) | {"passes_frames_per_cpu_s": [r["frames_per_cpu_s"] for r in passes]}
+            for passes in rows.values()]
+    evaluations = []
+    for task in tasks:
+        t = time.process_time()
+        report = evaluate(task, "expert", episodes=args.evaluate_rollouts, progress=False)
+        cpu = time.process_time() - t
+        steps = sum(r.steps for r in report.rollouts)
+        evaluations.append({"task": task, "policy": "expert", "cameras": "2 x 480x270", "rollouts": report.n,
+                            "steps": steps, "steps_per_cpu_s": steps / cpu, "success_rate": report.summary()["success_rate"]})
+    result = {"machine": machine(threads_used=1), "seeds": seeds, "passes": args.passes, "rows": best,
+              "evaluate": evaluations}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "task_throughput.json").write_text(json.dumps(result, indent=1))
+    chart(best)
+    for row in best:
+        print(f"{row['task']:16s} cameras {row['cameras']:12s} {row['frames_per_cpu_s']:7.1f} frames/s/core "
+              f"{row['kib_per_frame']:6.0f} KiB/frame")
+    for e in evaluations:
+        print(f"evaluate {e['task']}: {e['steps_per_cpu_s']:.1f} steps/s/core with cameras")
+    return 0
+
+
+def chart(rows: list[dict[str, Any]]) -> None:
+    fig, ax = plt.subplots(figsize=(8, 0.9 + 0.6 * len(rows)))
+    labels = [f"{r['task']}, cameras {r['cameras']}" for r in rows]
+    left = [0.0] * len(rows)
+    colours = ["#4c72b0", "#8172b2", "#dd8452", "#55a868", "#c44e52", "#999999"]
+    for stage, colour in zip((*STAGES, "other"), colours):
+        widths = [r["ms_per_frame"].get(stage, r["ms_per_frame_other"] if stage == "other" else 0.0) for r in rows]
+        ax.barh(labels, widths, left=left, color=colour, label=stage)
+        left = [a + b for a, b in zip(left, widths)]
+    for y, r in enumerate(rows):
+        ax.text(left[y] + 0.3, y, f"{r['frames_per_cpu_s']:.0f} frames/s/core", va="center", fontsize=8)
+    ax.set_xlabel("CPU ms per recorded frame (one core)")
+    ax.set_xlim(0, max(left) * 1.35)
+    ax.legend(fontsize=8, ncol=3, loc="lower right")
+    ax.set_title("Task demonstrations: where a recorded frame's time goes")
+    fig.tight_layout()
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / "task_throughput.png", dpi=120)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -29,6 +29,13 @@ def test_readme_main_command_installs_torch_first():
 def test_readme_python_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     make_dataset(tmp_path / "out/indenters", "hdf5", 4, n_frames=12)  # stands in for the generated corpus
+    from univtac_data import DatasetWriter
+    from univtac_data.generators.tasks.base import TaskConfig
+    from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
+
+    demo = run_expert(TaskEpisodeSpec("lift_can", 0, TaskConfig(camera_size=(32, 24)))).episode
+    assert demo is not None
+    DatasetWriter.open(tmp_path / "out/lift_can").add(demo)  # stands in for `generate task lift_can`
     examples = re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S)
     assert examples
     for example in examples:

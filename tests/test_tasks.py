@@ -173,3 +173,16 @@ def test_generate_task_refuses_bad_input(tmp_path):
     assert rate.returncode == 2 and "whole number" in rate.stderr and not out.exists()
     size = cli("generate", "task", "lift_can", "--camera-size", "big", "--out", str(out))
     assert size.returncode == 2 and "--camera-size" in size.stderr and not out.exists()
+
+
+@pytest.mark.slow
+def test_generate_task_on_ray_into_zarr_gives_the_same_episode(tmp_path):
+    pytest.importorskip("ray")
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    common = ["generate", "task", "lift_can", "--episodes", "1", "--no-cameras", "--seed", "5"]
+    assert cli(*common, "--out", str(local), "--workers", "1").returncode == 0
+    run = cli(*common, "--out", str(remote), "--workers", "1", "--executor", "ray", "--format", "zarr")
+    assert run.returncode == 0, run.stderr
+    a, b = Dataset.open(local), Dataset.open(remote)
+    assert b.info.storage == "zarr" and a.episode_ids == b.episode_ids
+    assert content_hash(a.load_episode(a.episode_ids[0])) == content_hash(b.load_episode(b.episode_ids[0]))

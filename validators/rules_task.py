@@ -100,16 +100,20 @@ def task_in_hand_slip(ctx: EpisodeContext) -> list[Finding]:
     for pad in ctx.meta.pads:
         held &= np.nan_to_num(ctx.summary(f"{pad}/contact_px")) > 0
     ee = ctx.array("robot/ee_pose").astype(np.float64)
-    obj = ctx.array(f"scene/objects/{task.objects()[0]}/pose").astype(np.float64)
+    names = task.objects()
+    positions = np.stack([ctx.array(f"scene/objects/{n}/pose")[:, :3].astype(np.float64) for n in names])
     slip = np.zeros(ctx.n_frames)
-    anchor = None
+    anchor: tuple[int, np.ndarray] | None = None
     for k in range(ctx.n_frames):
         if not held[k]:
             anchor = None
             continue
-        rel = quat_to_mat(ee[k, 3:]).T @ (obj[k, :3] - ee[k, :3])
-        anchor = rel if anchor is None else anchor
-        slip[k] = float(np.linalg.norm(rel - anchor)) * 1000.0
+        # the held object sits between the pads: of the task's objects, the nearest the gripper origin
+        nearest = int(np.argmin(np.linalg.norm(positions[:, k] - ee[k, :3], axis=1)))
+        rel = quat_to_mat(ee[k, 3:]).T @ (positions[nearest, k] - ee[k, :3])
+        if anchor is None or anchor[0] != nearest:
+            anchor = (nearest, rel)
+        slip[k] = float(np.linalg.norm(rel - anchor[1])) * 1000.0
     limit = task.max_in_hand_slip_mm
-    return collect([frame_finding(f"scene/objects/{task.objects()[0]}/pose", slip > limit, slip,
+    return collect([frame_finding("scene/objects", slip > limit, slip,
                                   f"slipped in the hand beyond {limit} mm", ctx.config.max_listed_frames, unit="mm")])

@@ -163,13 +163,22 @@ class GripperSim:
         self._states: dict[str, ContactState | None] = {pad: None for pad in PADS}
         # per pad, while in contact: the object-frame point (m) that sat at the pad centre when the contact
         # began, and the object's orientation in the pad frame then
-        self._anchors: dict[str, tuple[np.ndarray, np.ndarray] | None] = {pad: None for pad in PADS}
+        self._anchors: dict[str, tuple[int, np.ndarray, np.ndarray] | None] = {pad: None for pad in PADS}
         self._slides = [model.joint(f"{pad}_slide").qposadr[0] for pad in PADS]
         self._actuators = [model.actuator(f"{pad}_finger").id for pad in PADS]
         self._ee_site = model.site("ee").id
         self._pad_sites = {pad: model.site(f"{pad}_pad").id for pad in PADS}
         self._gel_geom_ids = {pad: model.geom(f"{pad}_gel").id for pad in PADS}
         self._object_geom_ids = {pad: [model.geom(g).id for g in geoms] for pad, geoms in pad_geoms.items()}
+        # the recorded object (or the indenter) each geom belongs to: its own body or the nearest recorded ancestor
+        self._geom_body = {}
+        recorded = set(self._object_ids.values())
+        for geoms in self._object_geom_ids.values():
+            for geom in geoms:
+                body = int(model.geom_bodyid[geom])
+                while body not in recorded and body != 0:
+                    body = int(model.body_parentid[body])
+                self._geom_body[geom] = body if body in recorded else int(model.geom_bodyid[geom])
         mujoco.mj_forward(model, self.data)
         self.ee_setpoint = np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
         self.finger_setpoints_m = self.data.qpos[self._slides].astype(float).copy()
@@ -261,6 +270,26 @@ class GripperSim:
         body = self._object_ids[name]
         return np.concatenate([self.data.xpos[body], mat_to_quat(self.data.xmat[body].reshape(3, 3))])
 
+    def object_gaps_mm(self) -> dict[str, dict[str, float]]:
+        """Per recorded object, per pad: the signed pad-object distance now, mm (as ``gap_mm``, object by
+        object; capped at ``GAP_PROBE_MAX_MM``). An object both pads overlap is the one held."""
+        out: dict[str, dict[str, float]] = {}
+        for name, body in self._object_ids.items():
+            out[name] = {}
+            for pad in PADS:
+                gel = self._gel_geom_ids[pad]
+                dists = [mujoco.mj_geomDistance(self.model, self.data, gel, geom, GAP_PROBE_MAX_MM / 1000, None)
+                         for geom in self._object_geom_ids[pad] if self._geom_body[geom] == body]
+                out[name][pad] = min(dists, default=GAP_PROBE_MAX_MM / 1000) * 1000.0
+        return out
+
+    def _touched_body(self, pad: str) -> int:
+        """The body of the geom nearest the pad now (the one a pad in contact is touching)."""
+        gel = self._gel_geom_ids[pad]
+        nearest = min(self._object_geom_ids[pad], key=lambda geom: mujoco.mj_geomDistance(
+            self.model, self.data, gel, geom, GAP_PROBE_MAX_MM / 1000, None))
+        return int(self._geom_body[nearest])
+
     def gap_mm(self) -> dict[str, float]:
         """Signed distance between each gel pad and the object now, mm: negative is the indentation the
         grasp law reads, positive the distance still to close (capped at ``GAP_PROBE_MAX_MM``).
@@ -306,7 +335,7 @@ class GripperSim:
                 self._apply_textures(gap, field.box, pose)
             near = gap[field.box]
             touching = bool(near.size) and float(near.min()) < 0.0
-            tangential_mm, twist_rad = self._motion_since_onset(pad, touching, pad_pos, pad_mat, obj_pos, obj_mat)
+            tangential_mm, twist_rad = self._motion_since_onset(pad, touching, pad_pos, pad_mat)
             stacks = {name: self.pixels[f"tactile/{pad}/{name}"] for name in PIXEL_FIELDS}
             rows = PixelBuffers(**{name: stack.next_row(*self._pixel_layout[name]) for name, stack in stacks.items()})
             frame = simulate_frame(
@@ -339,10 +368,11 @@ class GripperSim:
         if self.config.record_rate_hz is not None:
             self._next_record_s = self._record_origin_s + len(self.frames) / self.config.record_rate_hz
 
-    def _motion_since_onset(self, pad: str, touching: bool, pad_pos: np.ndarray, pad_mat: np.ndarray,
-                            obj_pos: np.ndarray, obj_mat: np.ndarray) -> tuple[tuple[float, float], float]:
-        """Tangential displacement (pad x, y, mm) and twist about the pad normal (rad) of the object since
-        this contact began.
+    def _motion_since_onset(self, pad: str, touching: bool, pad_pos: np.ndarray,
+                            pad_mat: np.ndarray) -> tuple[tuple[float, float], float]:
+        """Tangential displacement (pad x, y, mm) and twist about the pad normal (rad), since this contact
+        began, of the object the pad touches (with several objects in a scene, the one nearest the pad; a
+        change of object is a new contact).
 
         The displacement is that of the object's material point that sat at the pad centre at onset: the
         shear model needs the motion at the gel surface, and the object's origin, far behind the surface,
@@ -353,9 +383,11 @@ class GripperSim:
         if not touching:   # no overlap in the pad's gap field
             self._anchors[pad] = None
             return (0.0, 0.0), 0.0
-        if self._anchors[pad] is None:
-            self._anchors[pad] = (obj_mat.T @ (pad_pos - obj_pos), pad_mat.T @ obj_mat)
-        anchor, onset_rel = self._anchors[pad]  # type: ignore[misc]
+        body = self.object_body if len(self._object_ids) == 1 else self._touched_body(pad)
+        obj_pos, obj_mat = self.data.xpos[body], self.data.xmat[body].reshape(3, 3)
+        if self._anchors[pad] is None or self._anchors[pad][0] != body:  # type: ignore[index]
+            self._anchors[pad] = (body, obj_mat.T @ (pad_pos - obj_pos), pad_mat.T @ obj_mat)
+        _, anchor, onset_rel = self._anchors[pad]  # type: ignore[misc]
         in_pad = pad_mat.T @ (obj_pos + obj_mat @ anchor - pad_pos)
         turn = (pad_mat.T @ obj_mat) @ onset_rel.T
         twist = float(np.arctan2(turn[1, 0] - turn[0, 1], turn[0, 0] + turn[1, 1]))

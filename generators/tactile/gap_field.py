@@ -43,6 +43,7 @@ from .sensor_model import SensorGrid
 __all__ = ["GapFieldBuffer", "PadPose", "gap_field", "pad_pose"]
 
 M_TO_MM = 1000.0
+BEHIND_GEL_MM = 10.0  # geoms wholly this far behind the undeformed gel surface are not seen by the pad, mm
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,10 @@ def gap_field(
         pos = pad.rotation.T @ (data.geom_xpos[gid] * M_TO_MM - pad.origin_mm)
         rbound = float(model.geom_rbound[gid]) * M_TO_MM
         if rbound > 0.0 and pos[2] - rbound > cutoff_mm:  # the bounding sphere is wholly above: skip early
+            continue
+        if rbound > 0.0 and pos[2] + rbound < -BEHIND_GEL_MM:
+            # wholly behind the gel surface, farther than any press: behind the finger, not in the gel (an
+            # object there would otherwise read as pressed through the pad by its whole distance)
             continue
         rot = pad.rotation.T @ data.geom_xmat[gid].reshape(3, 3)
         if gtype == mujoco.mjtGeom.mjGEOM_MESH:

@@ -24,7 +24,7 @@ from univtac_data.generators.tasks.motions import _slerp
 from univtac_data.schema.sensors import get_sensor
 
 SETTLE_S = 0.2  # set-up: the scene settles this long before the policy's first step (not recorded)
-GRIP_CONTACT_MM = 0.05  # both pads overlap the object by at least this: it is held (in-hand slip is measured)
+GRIP_CONTACT_MM = 0.05  # both pads overlap an object by at least this: it is held (in-hand slip is measured)
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class TaskSession:
         self.max_indentation_mm = 0.0
         self.max_in_hand_slip_mm = 0.0
         self._initial: dict[str, np.ndarray] = {}
-        self._grip_anchor: np.ndarray | None = None
+        self._grip_anchor: tuple[str, np.ndarray] | None = None  # held object, its position in the hand at grip
 
     # --- life cycle --------------------------------------------------------------------------------
     def reset(self, seed: int) -> TaskState:
@@ -168,12 +168,18 @@ class TaskSession:
         gaps = sim.gap_mm()
         ee = sim.ee_pose()
         objects = {name: sim.object_pose(name) for name in self.task.objects()}
-        held = objects[self.task.objects()[0]]
-        in_hand = quat_to_mat(ee[3:]).T @ (held[:3] - ee[:3])
-        if all(-g >= GRIP_CONTACT_MM for g in gaps.values()):
-            if self._grip_anchor is None:
-                self._grip_anchor = in_hand
-            slip = float(np.linalg.norm(in_hand - self._grip_anchor)) * 1000.0
+        # the held object: the one both pads overlap (with one object, the pads' own gaps say so)
+        if len(objects) == 1:
+            held = next(iter(objects)) if all(-g >= GRIP_CONTACT_MM for g in gaps.values()) else None
+        else:
+            per_object = sim.object_gaps_mm()
+            held = next((name for name, pads in per_object.items()
+                         if all(-g >= GRIP_CONTACT_MM for g in pads.values())), None)
+        if held is not None:
+            in_hand = quat_to_mat(ee[3:]).T @ (objects[held][:3] - ee[:3])
+            if self._grip_anchor is None or self._grip_anchor[0] != held:
+                self._grip_anchor = (held, in_hand)
+            slip = float(np.linalg.norm(in_hand - self._grip_anchor[1])) * 1000.0
         else:
             self._grip_anchor, slip = None, 0.0
         return TaskState(step=self.steps, objects=objects, initial_objects=self._initial, ee_pose=ee,

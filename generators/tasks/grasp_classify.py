@@ -23,12 +23,13 @@ Randomisation (seeded)
     U(-4, 4) mm in x and y; its estimate of each pad's centre is off by U(0, 3) cm in a uniform direction
     (the pads are seen from afar and lie flat), the error a placement from that estimate inherits.
 Expert (closed loop; the decisions are recorded in ``memory``, corrections in ``memory['corrections']``)
-    for spot 0, then spot 1: move above the seen cylinder (top-down, closing along world x), descend to 6 cm
-    above its base, tactile grasp to 0.5 mm (0.3 mm on the GF225 and Xense WS); **classify from touch**: the
-    mean over both pads of ``TouchReading.fill`` (contact cells over the patch's oriented bounding box) is
-    0.66-0.92 on the plain cylinder and 0.16-0.36 on the knurled one (ridges only; seeds 0-99); below 0.45
-    reads 'rough'. ``memory['classes']`` maps spot to class and ``memory['fill']`` spot to both pads' fill. The
-    cylinder's offset along the pads (from the patch centroids) is taken out of the place target. Lift 12 cm,
+    for spot 0, then spot 1: move above the seen cylinder (top-down, the fingers closing across the line to
+    the other cylinder), descend to 6 cm above its base, tactile grasp to 0.5 mm (0.3 mm on the GF225 and
+    Xense WS); **classify from touch**, never from the layout: the mean over both pads of
+    ``TouchReading.fill`` (contact cells over the patch's oriented bounding box) is 0.66-0.92 on the plain
+    cylinder and 0.16-0.36 on the knurled one (ridges only; seeds 0-99); below 0.45 reads 'rough'.
+    ``memory['classes']`` maps spot to class and ``memory['fill']`` spot to both pads' fill. The cylinder's
+    offset along the pads (from the patch centroids) is taken out of the place target. Lift 7 cm,
     carry above the seen centre of the class's pad, lower until the base is 2 mm above the pad, release, lift
     away 6 cm. **Re-place after a miss**: the head camera then sees the cylinder standing ``miss`` from its
     pad's centre (the offset of a placed object from the pad it stands on is seen well, unlike the pad's
@@ -97,18 +98,14 @@ OPEN_MARGIN_M = 0.012  # opening beyond the diameter when approaching or releasi
 SUCCESS_RADIUS_M = 0.02
 SUCCESS_HEIGHT_M = 0.01
 MAX_TILT_RAD = math.radians(15.0)
-def GRASP_LAW(threshold_mm: float) -> GraspLaw:
-    """The kit's tactile grasp, whose slow phase also pushes a cylinder that one pad reached first across to the
-    other (the camera's centre is off by up to 4 mm): 12 mm/s rather than UniVTAC's 6 halves that push."""
-    return GraspLaw(threshold_mm=threshold_mm, v_slow_m_s=0.012)
-
-
 HELD_CONTACT_MM = 0.05  # both pads pressed at least this far in: the cylinder between them is held
 
 
-def grasp_depth_mm(profile: SensorProfile) -> float:
-    """Grasp depth, mm: 0.5 on the GelSight Mini, 0.3 on the sensors whose safe limit is 0.8 mm."""
-    return 0.5 if profile.name == "gelsight_mini" else 0.3
+def grasp_law(profile: SensorProfile) -> GraspLaw:
+    """The kit's tactile grasp to 0.5 mm on the GelSight Mini, 0.3 mm on the sensors whose safe limit is 0.8 mm.
+    Its slow phase also pushes a cylinder that one pad reached first across to the other (the camera's centre
+    is off by up to 4 mm): 12 mm/s rather than UniVTAC's 6 halves that push."""
+    return GraspLaw(threshold_mm=0.5 if profile.name == "gelsight_mini" else 0.3, v_slow_m_s=0.012)
 
 
 def current_yaw(quat: np.ndarray) -> float:
@@ -290,7 +287,7 @@ class GraspClassify(Task):
                            primitive="move" if primitive == "grasp" else primitive)
         yield from move_to(ctx, [centre_m[0], centre_m[1], base_z + GRASP_HEIGHT_M], speed_m_s=0.12,
                            primitive="move" if primitive == "grasp" else primitive)
-        yield from close_until(ctx, GRASP_LAW(grasp_depth_mm(self.profile)), primitive=primitive)
+        yield from close_until(ctx, grasp_law(self.profile), primitive=primitive)
         return ctx.touch()
 
     def _place(self, ctx: ExpertContext) -> Iterator[Step]:
@@ -362,4 +359,4 @@ class GraspClassify(Task):
         return SafetyCheck(True)
 
 
-__all__ = ["GraspClassify", "classify_from_touch", "offset_along_pads_m"]
+__all__ = ["GraspClassify", "classify_from_touch", "closing_yaw", "grasp_law", "offset_along_pads_m"]

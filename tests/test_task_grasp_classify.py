@@ -180,7 +180,8 @@ def test_success_needs_each_cylinder_on_its_own_pad():
         off[CYLINDERS["plain"]] = on_pads[CYLINDERS["plain"]] + [0.0, 0.021, 0, 0, 0, 0, 0]
         assert not task.success(_with_objects(state, off))
         tilted = dict(on_pads)
-        tilted[CYLINDERS["rough"]] = np.array([*GOAL_PADS_XY_M["rough"], pad_top + 0.05, np.cos(0.14), np.sin(0.14), 0, 0])
+        turn = 0.14  # half of 16 deg, rad: the quaternion of a 16 deg tilt about x
+        tilted[CYLINDERS["rough"]] = np.array([*GOAL_PADS_XY_M["rough"], pad_top + 0.05, np.cos(turn), np.sin(turn), 0, 0])
         assert not task.success(_with_objects(state, tilted))  # 16 deg
     finally:
         session.close()

@@ -63,7 +63,13 @@ import numpy as np
 from univtac_data.generators.scene.cameras import look_at_xyaxes
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML, PadContact
 from univtac_data.generators.scene.geometry import quat_to_mat
-from univtac_data.generators.scene.gripper import MAX_OPENING_M, GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
+from univtac_data.generators.scene.gripper import (
+    MAX_OPENING_M,
+    GripperParams,
+    gripper_actuator_xml,
+    gripper_body_xml,
+    gripper_equality_xml,
+)
 from univtac_data.generators.scene.sim import GeomTexture
 from univtac_data.generators.scene.texture import CylinderGrooves
 from univtac_data.generators.scene.touch import TouchReading
@@ -151,8 +157,8 @@ class GraspClassify(Task):
     # --- scene -------------------------------------------------------------------------------------
     def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
         rough_spot = int(rng.integers(2))
-        spots = [[x + float(rng.uniform(-SPOT_NOISE_M, SPOT_NOISE_M)), y + float(rng.uniform(-SPOT_NOISE_M, SPOT_NOISE_M))]
-                 for x, y in SPOTS_XY_M]
+        spots = [[x + float(dx), y + float(dy)]
+                 for (x, y), (dx, dy) in zip(SPOTS_XY_M, rng.uniform(-SPOT_NOISE_M, SPOT_NOISE_M, (2, 2)))]
         seen_spot_error = [[float(v) for v in rng.uniform(-SEEN_CYLINDER_ERROR_M, SEEN_CYLINDER_ERROR_M, 2)]
                            for _ in spots]
         seen_pad_error = {}
@@ -206,7 +212,8 @@ class GraspClassify(Task):
   <worldbody>
     <light pos="0.3 -0.4 1.0" dir="-0.3 0.4 -1"/>
     <light pos="-0.4 0.3 0.8" dir="0.4 -0.3 -1" diffuse="0.4 0.4 0.4"/>
-    <geom name="ground" type="plane" size="0.6 0.6 0.01" material="table" friction="0.8 0.005 0.0001"/>{''.join(pads)}{''.join(cylinders)}
+    <geom name="ground" type="plane" size="0.6 0.6 0.01" material="table" friction="0.8 0.005 0.0001"/>
+    {''.join(pads)}{''.join(cylinders)}
     {gripper_body_xml(self.profile, params, (0.0, 0.0, 0.3))}
     <camera name="head" pos="{eye[0]} {eye[1]} {eye[2]}" xyaxes="{look_at_xyaxes(eye, (0.0, 0.0, 0.04))}" fovy="45"/>
   </worldbody>
@@ -268,7 +275,8 @@ class GraspClassify(Task):
                                    primitive="carry")
                 yield from self._place(ctx)
 
-    def _pick(self, ctx: ExpertContext, centre_m: np.ndarray, primitive: str) -> Generator[Step, None, dict[str, TouchReading]]:
+    def _pick(self, ctx: ExpertContext, centre_m: np.ndarray,
+              primitive: str) -> Generator[Step, None, dict[str, TouchReading]]:
         """Approach the cylinder whose centre the camera sees at ``centre_m`` (3,) m (its base at
         ``centre_m[2] - height / 2``) from above and grasp it with the tactile law; returns the touch.
 

@@ -44,10 +44,8 @@ def run_expert(task: GraspClassify, seed: int) -> Outcome:
             if session.steps >= task.max_steps:
                 break
             state = session.step(step.action, step.primitive)
-        rough = session.layout["rough_spot"]
-        truth = {str(spot): "rough" if spot == rough else "plain" for spot in (0, 1)}
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps,
-                       dict(ctx.memory["classes"]), truth, list(ctx.memory["corrections"]))
+                       dict(ctx.memory["classes"]), task.true_classes(session.layout), list(ctx.memory["corrections"]))
     finally:
         session.close()
 
@@ -181,7 +179,8 @@ def test_success_needs_each_cylinder_on_its_own_pad():
         assert not task.success(_with_objects(state, off))
         tilted = dict(on_pads)
         turn = 0.14  # half of 16 deg, rad: the quaternion of a 16 deg tilt about x
-        tilted[CYLINDERS["rough"]] = np.array([*GOAL_PADS_XY_M["rough"], pad_top + 0.05, np.cos(turn), np.sin(turn), 0, 0])
+        tilted[CYLINDERS["rough"]] = np.array([*GOAL_PADS_XY_M["rough"], pad_top + 0.05,
+                                               np.cos(turn), np.sin(turn), 0, 0])
         assert not task.success(_with_objects(state, tilted))  # 16 deg
     finally:
         session.close()

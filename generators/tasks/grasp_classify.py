@@ -175,6 +175,12 @@ class GraspClassify(Task):
         return [GeomTexture(CYLINDERS["rough"], KNURL)]
 
     @staticmethod
+    def true_classes(layout: dict[str, Any]) -> dict[str, str]:
+        """Ground truth per spot ('0', '1') -> 'rough' or 'plain', in the form of the expert's
+        ``memory['classes']``, to score its classification (the expert itself never reads it)."""
+        return {str(spot): "rough" if spot == layout["rough_spot"] else "plain" for spot in (0, 1)}
+
+    @staticmethod
     def cylinder_xy(layout: dict[str, Any], cls: str) -> tuple[float, float]:
         """Where the layout stands the cylinder of class ``cls`` (x, y m, world)."""
         spot = layout["rough_spot"] if cls == "rough" else 1 - layout["rough_spot"]

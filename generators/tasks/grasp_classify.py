@@ -210,7 +210,6 @@ class GraspClassify(Task):
         return f"""<mujoco model="grasp_classify">
   <compiler angle="radian" autolimits="true"/>
   {TASK_OPTION_XML}
-  <visual><global offwidth="640" offheight="480"/></visual>
   <asset>
     <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.84" rgb2="0.74 0.74 0.77" width="256" height="256"/>
     <material name="table" texture="grid" texrepeat="8 8"/>

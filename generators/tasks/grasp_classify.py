@@ -41,8 +41,8 @@ Success
     of the pad's top, axis tilted less than 15 deg from vertical.
 Safety (per step; a violation makes the rollout invalid)
     deepest pad indentation <= the sensor's safe limit (1.5 mm Mini, 0.8 mm GF225 / Xense WS); a held cylinder
-    moves at most 5 mm in the gripper frame once both pads grip it (measured on whichever cylinder is held:
-    see ``GraspClassify.safety``).
+    moves at most 5 mm in the gripper frame once both pads grip it (the kit measures it on whichever cylinder
+    both pads touch).
 Step limit
     1250 policy steps (25 s at 50 Hz): the expert takes 480-530 steps for its two pick-and-places and about
     170 more for each re-place (at most four: 1210; 480-875 steps on seeds 0-99). UniVTAC's single-object
@@ -54,7 +54,6 @@ Version history
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from collections.abc import Generator, Iterator
 from typing import Any
 
@@ -73,7 +72,7 @@ from univtac_data.generators.scene.gripper import (
 from univtac_data.generators.scene.sim import GeomTexture
 from univtac_data.generators.scene.texture import CylinderGrooves
 from univtac_data.generators.scene.touch import TouchReading
-from univtac_data.generators.tasks.base import ExpertContext, SafetyCheck, Step, Task, TaskConfig, TaskState, yaw_quat
+from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState, yaw_quat
 from univtac_data.generators.tasks.motions import GraspLaw, close_until, move_to, open_to
 from univtac_data.schema.sensors import SensorProfile
 
@@ -83,7 +82,8 @@ MASS_KG = 0.10
 CYLINDER_RGBA = "0.35 0.45 0.6 1"
 KNURL = CylinderGrooves(pitch_mm=1.6, depth_mm=0.6, duty=0.5, axial=True)
 CLASSES = ("rough", "plain")
-CYLINDERS = {"rough": "rough_cylinder", "plain": "plain_cylinder"}
+# bodies named by the spot they start on, not by class: the metadata must not give away what only touch can tell
+CYLINDER_NAMES = ("cylinder_0", "cylinder_1")
 GOAL_PADS_XY_M = {"rough": (0.09, -0.08), "plain": (0.09, 0.08)}  # centres, 16 cm apart
 GOAL_PAD_HALF_M = (0.04, 0.04, 0.0015)  # half sizes: 8 x 8 cm, 3 mm thick
 GOAL_PAD_RGBA = {"rough": "0.95 0.5 0.1 1", "plain": "0.2 0.65 0.3 1"}
@@ -104,7 +104,6 @@ OPEN_MARGIN_M = 0.012  # opening beyond the diameter when approaching or releasi
 SUCCESS_RADIUS_M = 0.02
 SUCCESS_HEIGHT_M = 0.01
 MAX_TILT_RAD = math.radians(15.0)
-HELD_CONTACT_MM = 0.05  # both pads pressed at least this far in: the cylinder between them is held
 
 
 def grasp_law(profile: SensorProfile) -> GraspLaw:
@@ -150,9 +149,6 @@ class GraspClassify(Task):
     def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True) -> None:
         super().__init__(config, profile)
         self.corrections = corrections  # False: the expert never re-places (to measure what re-placing is worth)
-        # per running episode (keyed by its initial-pose dict, which lives as long as the episode): the held
-        # cylinder and where it sat in the gripper frame when both pads gripped it
-        self._grips: OrderedDict[int, tuple[dict[str, np.ndarray], str | None, np.ndarray | None]] = OrderedDict()
 
     # --- scene -------------------------------------------------------------------------------------
     def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
@@ -169,10 +165,16 @@ class GraspClassify(Task):
                 "spots_m": spots, "seen_spot_error_m": seen_spot_error, "seen_pad_error_m": seen_pad_error}
 
     def objects(self) -> list[str]:
-        return [CYLINDERS["rough"], CYLINDERS["plain"]]
+        return list(CYLINDER_NAMES)
 
     def textures(self, layout: dict[str, Any]) -> list[GeomTexture]:
-        return [GeomTexture(CYLINDERS["rough"], KNURL)]
+        return [GeomTexture(self.cylinder_of(layout, "rough"), KNURL)]
+
+    @staticmethod
+    def cylinder_of(layout: dict[str, Any], cls: str) -> str:
+        """The body of class ``cls`` ('rough' or 'plain') in ``layout``."""
+        spot = layout["rough_spot"] if cls == "rough" else 1 - layout["rough_spot"]
+        return CYLINDER_NAMES[spot]
 
     @staticmethod
     def true_classes(layout: dict[str, Any]) -> dict[str, str]:
@@ -191,7 +193,7 @@ class GraspClassify(Task):
         r, half = layout["radius_m"], layout["height_m"] / 2
         cylinders, pads = [], []
         for cls in CLASSES:
-            name = CYLINDERS[cls]
+            name = self.cylinder_of(layout, cls)
             x, y = self.cylinder_xy(layout, cls)
             # identical MJCF apart from the name: the knurl lives only in the tactile gap field
             cylinders.append(f"""
@@ -321,7 +323,7 @@ class GraspClassify(Task):
     def success(self, state: TaskState) -> bool:
         pad_top = 2 * GOAL_PAD_HALF_M[2]
         for cls in CLASSES:
-            pose = state.objects[CYLINDERS[cls]]
+            pose = state.objects[self.cylinder_of(state.layout, cls)]
             axis = quat_to_mat(pose[3:])[:, 2]
             tilt = math.acos(min(1.0, abs(float(axis[2]))))
             base_z = pose[2] - abs(float(axis[2])) * HEIGHT_M / 2
@@ -330,46 +332,6 @@ class GraspClassify(Task):
             if abs(base_z - pad_top) >= SUCCESS_HEIGHT_M or tilt >= MAX_TILT_RAD:
                 return False
         return True
-
-    def held(self, state: TaskState) -> str | None:
-        """The cylinder both pads grip at ``state``, if any: the one between the pads while the opening is
-        narrower than its diameter by both pads' contact depth."""
-        if state.opening_m > 2 * RADIUS_M - 2 * HELD_CONTACT_MM / 1000:
-            return None
-        rot = quat_to_mat(state.ee_pose[3:])
-        half_pad_m = self.profile.gel_width_mm / 2000
-        for name in self.objects():
-            local = rot.T @ (state.objects[name][:3] - state.ee_pose[:3])
-            if abs(local[0]) < RADIUS_M and abs(local[1]) < half_pad_m and abs(local[2]) < HEIGHT_M / 2 + 0.01:
-                return name
-        return None
-
-    def safety(self, state: TaskState) -> SafetyCheck:
-        """The kit's rule, with in-hand slip measured on the cylinder actually held: ``TaskState``'s own
-        ``in_hand_slip_mm`` follows the first object only, so it would read the gripper carrying the plain
-        cylinder as the (standing) knurled one slipping. Calls must come in step order within an episode
-        (``TaskSession`` makes them so); episodes are told apart by their ``initial_objects`` dict."""
-        key = id(state.initial_objects)
-        _, name, anchor = self._grips.pop(key, (state.initial_objects, None, None))
-        held = self.held(state)
-        slip_mm = 0.0
-        if held is None:
-            name, anchor = None, None
-        else:
-            rot = quat_to_mat(state.ee_pose[3:])
-            in_hand = rot.T @ (state.objects[held][:3] - state.ee_pose[:3])
-            if held != name or anchor is None:
-                name, anchor = held, in_hand
-            slip_mm = float(np.linalg.norm(in_hand - anchor)) * 1000.0
-        self._grips[key] = (state.initial_objects, name, anchor)
-        while len(self._grips) > 16:  # finished episodes
-            self._grips.popitem(last=False)
-        if state.indentation_mm > self.profile.safe_indentation_mm:
-            return SafetyCheck(False, f"indentation {state.indentation_mm:.2f} mm > safe "
-                                      f"{self.profile.safe_indentation_mm} mm")
-        if slip_mm > self.max_in_hand_slip_mm:
-            return SafetyCheck(False, f"in-hand slip of {name} {slip_mm:.1f} mm > {self.max_in_hand_slip_mm} mm")
-        return SafetyCheck(True)
 
 
 __all__ = ["GraspClassify", "classify_from_touch", "closing_yaw", "grasp_law", "offset_along_pads_m"]

@@ -19,7 +19,7 @@ from univtac_data.generators.scene.touch import read_touch
 from univtac_data.generators.tactile import GAP_FAR_MM, sensor_grid
 from univtac_data.generators.tasks.base import EVAL_SEED_BASE, TaskConfig
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
-from univtac_data.generators.tasks.registry import make_task
+from univtac_data.generators.tasks.registry import TASK_NAMES, make_task
 from univtac_data.generators.tasks.session import TaskSession
 from univtac_data.schema.sensors import get_sensor
 
@@ -52,9 +52,10 @@ def test_lift_can_expert_succeeds_on_100_seeds_and_its_correction_matters():
     assert sum(o.success for o in without) <= 0.5 * 30  # the correction is what makes the task work
 
 
-def test_zero_policy_never_succeeds():
-    task = make_task("lift_can", FAST)
-    for seed in range(3):
+@pytest.mark.parametrize("name", TASK_NAMES)
+def test_zero_policy_never_succeeds(name):
+    task = make_task(name, FAST)
+    for seed in range(2):
         session = TaskSession(task)
         session.reset(EVAL_SEED_BASE + seed)
         for _ in range(task.max_steps):
@@ -107,11 +108,12 @@ def test_touch_reading_of_a_band_and_of_a_tilted_strip():
     assert not read_touch(np.full(grid.shape, GAP_FAR_MM), grid).touching
 
 
-def test_gymnasium_environment_passes_the_checker_and_resets_deterministically():
+@pytest.mark.parametrize("name", TASK_NAMES)
+def test_gymnasium_environment_passes_the_checker_and_resets_deterministically(name):
     import univtac_data.envs  # noqa: F401  (registers the environments)
 
-    env = gym.make("univtac/LiftCan-v0", camera_size=(64, 48))
-    assert env.spec is not None and env.spec.max_episode_steps == make_task("lift_can").max_steps
+    env = gym.make(make_task(name).gym_id, camera_size=(64, 48))
+    assert env.spec is not None and env.spec.max_episode_steps == make_task(name).max_steps
     check_env(env.unwrapped)
     first, info = env.reset(seed=11)
     again, _ = env.reset(seed=11)

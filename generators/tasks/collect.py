@@ -23,6 +23,7 @@ from univtac_data.episode import Episode
 from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.runner import run_specs
 from univtac_data.generators.scene.recording import build_episode
+from univtac_data.generators.scene.threads import one_blas_thread
 from univtac_data.generators.tasks.base import EVAL_SEED_BASE, ExpertContext, TaskConfig
 from univtac_data.generators.tasks.registry import make_task
 from univtac_data.generators.tasks.session import TaskSession
@@ -81,7 +82,8 @@ def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool 
         memory = _jsonable(ctx.memory)
         outcome = ExpertOutcome(spec.seed, bool(success), session.safe, session.steps, session.first_violation(), memory)
         if record:
-            outcome.episode = _episode(spec, session, outcome)
+            with one_blas_thread():
+                outcome.episode = _episode(spec, session, outcome)
         return outcome
     finally:
         session.close()

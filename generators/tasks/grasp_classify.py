@@ -8,13 +8,14 @@ Description
     tactile grasp, classifies it from its contact patches alone, carries it to its class's pad, places and
     releases it, and re-places it if the head camera sees it standing off the pad's centre.
 Objects (procedural; plausible real sizes)
-    ``rough_cylinder``, ``plain_cylinder``: cylinders of diameter 4 cm and height 10 cm, 100 g (a plastic
-    grip or a spice jar), grey-blue, origin at the centre, local +z along the axis. The knurl:
+    ``cylinder_0``, ``cylinder_1`` (named by the spot they start on, not by class): cylinders of diameter
+    4 cm and height 10 cm, 100 g (a plastic grip or a spice jar), grey-blue, origin at the centre, local +z
+    along the axis. The knurl:
     ``CylinderGrooves`` of pitch 1.6 mm and depth 0.6 mm (half of each pitch cut, rings and axial
     grooves), deeper than the grasp presses, so the gel touches only the diamond ridges. The first object is
-    the tactile object (``rough_cylinder``: its pose in each pad frame is recorded as
-    ``tactile/{pad}/object_pose``); the plain cylinder's pad-frame pose follows from its world pose
-    (``scene/objects/plain_cylinder/pose``) and the pad's (``tactile/{pad}/pad_pose``).
+    the tactile object (``cylinder_0``: its pose in each pad frame is recorded as
+    ``tactile/{pad}/object_pose``); the other's pad-frame pose follows from its world pose
+    (``scene/objects/cylinder_1/pose``) and the pad's (``tactile/{pad}/pad_pose``).
     Goal pads (fixed, part of the table): 8 x 8 cm, 3 mm thick; orange 'rough' pad centred at
     (0.09, -0.08) m, green 'plain' pad at (0.09, +0.08) m. Ground: a plane, friction 0.8.
 Randomisation (seeded)

@@ -19,6 +19,7 @@ import numpy as np
 from univtac_data.generators.scene.geometry import quat_to_mat
 from univtac_data.generators.scene.gripper import FINGER_TRAVEL_M, MAX_OPENING_M, MIN_OPENING_M, PADS, opening_to_finger_pos
 from univtac_data.generators.scene.sim import GripperSim, SimConfig
+from univtac_data.generators.scene.threads import one_blas_thread
 from univtac_data.generators.tasks.base import SafetyCheck, Task, TaskConfig, TaskState
 from univtac_data.generators.tasks.motions import _slerp
 from univtac_data.schema.sensors import get_sensor
@@ -76,6 +77,10 @@ class TaskSession:
     # --- life cycle --------------------------------------------------------------------------------
     def reset(self, seed: int) -> TaskState:
         """A new episode from ``seed``: layout, scene, set-up; frame 0 is recorded when recording."""
+        with one_blas_thread():
+            return self._reset(seed)
+
+    def _reset(self, seed: int) -> TaskState:
         if self.sim is not None:
             self.sim.close()
         self.seed = int(seed)
@@ -127,6 +132,10 @@ class TaskSession:
     # --- stepping ----------------------------------------------------------------------------------
     def step(self, action: np.ndarray, primitive: str | None = None) -> TaskState:
         """Apply one absolute action (8,) for one policy step; returns the state after it."""
+        with one_blas_thread():
+            return self._step(action, primitive)
+
+    def _step(self, action: np.ndarray, primitive: str | None) -> TaskState:
         sim = self.sim
         if sim is None:
             raise RuntimeError("step() before reset()")

@@ -83,10 +83,9 @@ def _check_same_settings(writer: DatasetWriter, specs: list[IndenterEpisodeSpec]
                                        ("record_rate_hz", row.nominal_rate_hz, spec.record_rate_hz),
                                        ("sensor", row.sensor, spec.sensor), ("shape", row.name, spec.shape)):
             if made_with != wanted:
-                what = "base_seed" if key == "seed" else key
-                raise DatasetError(f"{writer.loc.url_of(row.path)}: made with other settings ({key} {made_with!r}, "
-                                   f"this run's episode has {wanted!r}; check --{what.replace('_', '-')}); rerun "
-                                   f"with the same options or choose a new --out")
+                hint = " (derived from --seed)" if key == "seed" else ""
+                raise DatasetError(f"{writer.loc.url_of(row.path)}: made with {key}={made_with!r}, this run asks for "
+                                   f"{key}={wanted!r}{hint}; rerun with the same options or choose a new --out")
     row = writer.index[done[0].episode_id]
     with writer.store.open(writer.loc, row.path) as handle:
         stored = handle.meta.generator.settings

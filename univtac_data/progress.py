@@ -33,6 +33,12 @@ class Progress:
             self._bar = tqdm(total=total, initial=initial, unit=unit, desc=desc, file=self.stream,
                              dynamic_ncols=True)
 
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def update(self, n: int = 1, **postfix: Any) -> None:
         self.done += n
         self.postfix.update(postfix)

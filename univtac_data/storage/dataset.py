@@ -168,6 +168,7 @@ class Dataset:
         self.info = info
         self.index = index
         self.store = get_store(info.storage)
+        self.index_found = True  # False: meta/episodes.parquet is missing (``open`` then has an empty index)
 
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Dataset:
@@ -178,7 +179,9 @@ class Dataset:
         if not loc.exists(INFO_PATH):
             raise NotADatasetError(f"{loc.url}: not a univtac-data dataset (no {INFO_PATH})")
         info = read_info(loc)
-        return cls(loc, info, read_index(loc))
+        dataset = cls(loc, info, read_index(loc))
+        dataset.index_found = loc.exists(INDEX_PATH)
+        return dataset
 
     @property
     def episode_ids(self) -> list[str]:
@@ -212,6 +215,37 @@ class Dataset:
 
     def manifest(self) -> Manifest:
         return read_manifest(self.loc)
+
+    def episode_files_on_disk(self) -> list[str]:
+        """Names of the finished episode files (or Zarr groups) under ``episodes/``, indexed or not."""
+        return [n for n in self.loc.listdir(EPISODES_DIR) if not n.startswith(TMP_PREFIX) and n.endswith(self.store.suffix)]
+
+    def check_files(self) -> list[str]:
+        """One line per indexed episode file that is missing, or whose size differs from the manifest (a cheap
+        check from one directory listing: no file is opened or hashed; ``validate`` is the deep check)."""
+        manifest = self.manifest()
+        sizes: dict[str, int] = {}
+        if self.loc.exists(EPISODES_DIR):
+            prefix = self.loc.root.rstrip("/") + "/"
+            for path, detail in self.loc.fs.find(self.loc.join(EPISODES_DIR), detail=True).items():
+                sizes[path[len(prefix):] if path.startswith(prefix) else path.lstrip("/")] = int(detail["size"])
+        by_episode: dict[str, list[str]] = {}
+        for rel, entry in manifest.files.items():
+            by_episode.setdefault(entry.episode_id, []).append(rel)
+        problems = []
+        for episode_id, row in sorted(self.index.items()):
+            files = by_episode.get(episode_id)
+            if not files:
+                problems.append(f"{self.loc.url_of(row.path)}: indexed but not in the manifest")
+                continue
+            for rel in sorted(files):
+                entry = manifest.files[rel]
+                if rel not in sizes:
+                    problems.append(f"{self.loc.url_of(rel)}: indexed but the file is missing")
+                elif sizes[rel] != entry.bytes:
+                    problems.append(f"{self.loc.url_of(rel)}: {sizes[rel]} bytes, the manifest says {entry.bytes} "
+                                    f"(truncated or replaced)")
+        return problems
 
     def verify_checksums(self, episode_ids: list[str] | None = None) -> list[str]:
         """One line per file whose SHA-256 or size differs from the manifest, or that is missing."""

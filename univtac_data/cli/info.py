@@ -63,7 +63,7 @@ def disagreements(dataset: Dataset) -> list[str]:
         for key in SHARED_FIELDS.get(kind, ("format_version", "nominal_rate_hz")):
             values = Counter(getattr(r, key) for r in mine)
             if len(values) > 1:
-                listed = ", ".join(f"{v} ({n} episodes)" for v, n in sorted(values.items(), key=lambda kv: -kv[1]))
+                listed = ", ".join(f"{v} ({n} episode{'s' if n > 1 else ''})" for v, n in sorted(values.items(), key=lambda kv: -kv[1]))
                 out.append(f"{dataset.loc.url}: {kind} episodes disagree on {key}: {listed} (a folder mixing runs "
                            f"of different settings)")
     return out

@@ -369,15 +369,16 @@ class DatasetWriter:
         write_index(self.loc, list(self.index.values()))
         self._index_seen = self._index_signature()
 
-    def _index_signature(self) -> tuple[int, int] | None:
-        """Size and mtime of the index file as this writer last saw it (local folders; None elsewhere)."""
+    def _index_signature(self) -> tuple[int, int, int] | None:
+        """Inode, size and mtime of the index file as this writer last saw it (local folders; None elsewhere).
+        Every index write replaces the file, so another writer's write changes the inode."""
         if not self.loc.is_local:
             return None
         try:
             stat = os.stat(self.loc.join(INDEX_PATH))
         except FileNotFoundError:
             return None
-        return stat.st_size, stat.st_mtime_ns
+        return stat.st_ino, stat.st_size, stat.st_mtime_ns
 
     def _merge_others(self) -> None:
         """Keep rows another writer committed since this one read the index (a writer that did not take the

@@ -23,6 +23,7 @@ from typing import Any, TypeVar
 
 from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
+from univtac_data.generators.reaper import start_reaper, stop_reaper
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.encoding import ZSTD_LEVELS
 from univtac_data.progress import Progress
@@ -168,8 +169,11 @@ def _ray(produce: Callable[..., R], specs: Iterable[S], args: tuple[Any, ...], w
     import ray
 
     started_here = not ray.is_initialized()
+    reaper = None
     if started_here:
         kwargs: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
+        if not address:  # a local Ray: its processes must not outlive this driver, even SIGKILLed
+            reaper = start_reaper()
         ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR, **kwargs)
     try:
         remote = ray.remote(num_cpus=1)(produce)
@@ -191,6 +195,7 @@ def _ray(produce: Callable[..., R], specs: Iterable[S], args: tuple[Any, ...], w
     finally:
         if started_here:
             ray.shutdown()
+        stop_reaper(reaper)
 
 
 RAY_CONNECT_TIMEOUT_S = 5.0

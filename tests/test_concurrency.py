@@ -133,19 +133,6 @@ def test_writers_without_the_lock_keep_each_others_index_entries(tmp_path):
 
 # --- workers die with their parent -------------------------------------------------------------------------------
 
-def _children(pid: int) -> set[int]:
-    out = set()
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path(f"/proc/{entry}/stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out.add(int(entry))
-    return out
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -155,30 +142,38 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-def test_sigkill_of_the_generate_parent_ends_its_workers(tmp_path):
-    children: set[int] = set()
-    parent = start("generate", "indenters", "--out", str(tmp_path / "ds"), "--episodes-per-shape", "4",
-                   "--frames-per-episode", "60", "--workers", "2", quiet=True)
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_sigkill_of_the_generate_parent_ends_its_workers(tmp_path, executor):
+    if executor == "ray":
+        pytest.importorskip("ray")
+    from univtac_data.generators.reaper import descendants
+
+    root = tmp_path / "ds"
+    started: set[int] = set()
+    parent = start("generate", "indenters", "--out", str(root), "--episodes-per-shape", "4", "--frames-per-episode",
+                   "60", "--workers", "2", "--executor", executor, quiet=True)
     try:
         deadline = time.monotonic() + 240
         while time.monotonic() < deadline and parent.poll() is None:
-            children |= _children(parent.pid)
-            if len(children) >= 3:  # two pool workers and the resource tracker
+            started |= set(descendants(parent.pid))
+            # local: two pool workers and the resource tracker; ray: wait for the first finished episode
+            if (executor == "local" and len(started) >= 3) or \
+                    (executor == "ray" and (root / "episodes").is_dir() and any((root / "episodes").iterdir())):
                 break
             time.sleep(0.2)
-        assert len(children) >= 3, f"workers never started ({parent.poll()})"
-        time.sleep(2.0)  # let the workers get busy in an episode
-        children |= _children(parent.pid)
+        assert parent.poll() is None and len(started) >= 3, f"workers never started ({parent.poll()})"
+        time.sleep(1.0)  # the workers are busy in an episode
+        started |= set(descendants(parent.pid))
         parent.send_signal(signal.SIGKILL)
         parent.wait(timeout=30)
         deadline = time.monotonic() + 20
-        while time.monotonic() < deadline and any(_alive(c) for c in children):
+        while time.monotonic() < deadline and any(_alive(c) for c in started):
             time.sleep(0.2)
-        assert not [c for c in children if _alive(c)], "pool workers outlived their parent"
+        assert not [c for c in started if _alive(c)], "processes outlived their generate parent"
     finally:
         if parent.poll() is None:
             parent.kill()
-        for child in children:  # a failed run must not leave them behind
+        for child in started:  # a failed run must not leave them behind
             if _alive(child):
                 os.kill(child, signal.SIGKILL)
 

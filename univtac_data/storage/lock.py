@@ -215,6 +215,12 @@ class DatasetLock:
                 return None
             except FileExistsError:
                 pass
+            except (ValueError, NotImplementedError):
+                # a file system without exclusive create: check, then write (a narrow race remains)
+                if not self.loc.exists(LOCK_NAME):
+                    self.loc.fs.pipe_file(path, mine)
+                    atexit.register(_release_at_exit, self.key)
+                    return None
             try:
                 holder = LockHolder.parse(self.loc.read_bytes(LOCK_NAME))
             except FileNotFoundError:

@@ -202,8 +202,13 @@ def test_relative_links_in_the_docs_resolve():
     assert not broken, broken
 
 
-def test_converted_dataset_is_complete_after_rerun(tmp_path):
-    """`convert` into a folder holding a partial conversion finishes it (the lock is free after each run)."""
+def test_convert_finishes_a_partial_conversion_and_says_so(tmp_path):
+    import shutil
+
     src = make_dataset(tmp_path / "src", "hdf5", 2, n_frames=3)
     assert cli("convert", str(src), str(tmp_path / "z"), "--to", "zarr").returncode == 0
+    shutil.rmtree(tmp_path / "z/episodes/ep1.zarr")  # as if killed before ep1 was written
+    assert cli("reindex", str(tmp_path / "z")).returncode == 0
+    done = cli("convert", str(src), str(tmp_path / "z"), "--to", "zarr")
+    assert done.returncode == 0 and "1 converted, 1 already converted, 0 failed" in done.stdout, done.stderr
     assert Dataset.open(tmp_path / "z").episode_ids == ["ep0", "ep1"]

@@ -30,7 +30,6 @@ import socket
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any
 
 from univtac_data.storage.errors import DatasetError
 from univtac_data.storage.fs import Location

@@ -24,9 +24,9 @@ from typing import Any, TypeVar
 from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
 from univtac_data.generators.reaper import start_reaper, stop_reaper
+from univtac_data.progress import Progress
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, write_episode_file
 from univtac_data.storage.encoding import ZSTD_LEVELS
-from univtac_data.progress import Progress
 from univtac_data.storage.errors import DatasetError
 
 S = TypeVar("S")
@@ -106,7 +106,9 @@ WATCHDOG_PERIOD_S = 1.0
 def _die_with_parent(parent_pid: int) -> None:
     """Pool worker initializer: end this worker when the process that started it dies, even by SIGKILL
     (whose pool cannot tell its workers anything). On Linux the kernel sends SIGKILL (prctl
-    PR_SET_PDEATHSIG); everywhere a daemon thread also watches the parent's pid, for a worker busy in Python."""
+    PR_SET_PDEATHSIG); everywhere a daemon thread also watches the parent's pid, for a worker busy in Python.
+    (Linux signals on the exit of the *thread* that started the worker: iterate ``run_specs`` from one thread
+    that lives as long as the run, as ``run_corpus`` does.)"""
     if os.uname().sysname == "Linux":
         try:
             libc = ctypes.CDLL(None, use_errno=True)

@@ -25,7 +25,7 @@ def readable(ctx: EpisodeContext) -> list[Finding]:
 @rule("schema.format_version", "schema")
 def format_version(ctx: EpisodeContext) -> list[Finding]:
     """The episode's format version has this reader's major version (a newer minor is read, extras ignored),
-    and the file's own ``format_version`` attribute is present and says the same as its metadata."""
+    and the file's own format_version attribute is present and says the same as its metadata."""
     # Opening an episode of another major version fails before a context exists, and the runner reports
     # that under this rule; this covers a context built some other way.
     major = parse_format_version(ctx.meta.format_version)[0]

@@ -46,6 +46,7 @@ def assert_each_episode_indexed_once(root: Path, expected: set[str]) -> None:
     on_disk = {p.name.removesuffix(".h5") for p in (root / "episodes").iterdir()}
     assert on_disk == expected  # no temporaries, no unindexed file
     assert dataset.verify_checksums() == []
+    assert not (root / LOCK_NAME).exists()  # every writer released its lock
 
 
 # --- the writer lock ---------------------------------------------------------------------------------------------
@@ -66,7 +67,7 @@ def test_a_second_writer_is_refused_in_one_line_naming_the_holder(tmp_path):
             assert f"another writer is using this dataset: pid {os.getpid()} on {socket.gethostname()}" in lines[0]
     assert sorted(p.name for p in (root / "meta").iterdir()) == before
     assert Dataset.open(root).episode_ids == ["ep0"]
-    assert (root / LOCK_NAME).read_bytes() == b""  # released: the file names no holder
+    assert not (root / LOCK_NAME).exists()  # released: a dataset carries no lock file between writers
 
 
 def test_a_stale_lock_is_taken_over_and_named(tmp_path):

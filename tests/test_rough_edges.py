@@ -56,6 +56,14 @@ def test_unwritable_outputs_are_one_line_and_leave_nothing(tmp_path):
     assert blocker.read_text() == "not a folder"
 
 
+def test_a_folder_that_is_not_a_dataset_is_left_as_it_was(tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine/notes.txt").write_text("keep")
+    line = one_line_error(cli("generate", "indenters", "--out", str(tmp_path / "mine"), *TINY))
+    assert "directory is not empty and holds no univtac-data dataset" in line
+    assert sorted(p.name for p in (tmp_path / "mine").iterdir()) == ["notes.txt"]  # no lock file, no meta/
+
+
 @pytest.mark.skipif(importlib.util.find_spec("s3fs") is not None, reason="s3fs is installed")
 def test_an_object_store_url_without_its_package_names_the_extra():
     line = one_line_error(cli("info", "s3://bucket/dataset"))

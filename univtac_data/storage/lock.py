@@ -5,8 +5,9 @@ ignore it, and copying a dataset without it loses nothing. It holds one JSON lin
 time and command, so that a refused writer can say who holds the dataset.
 
 * Local folders: the file is held with ``flock``, which the kernel releases when the holder exits, however it
-  exits (SIGKILL too). A file that still names a holder while nobody holds the ``flock`` is a stale lock, left
-  by a killed writer; the next writer takes it over and names the dead holder in a warning.
+  exits (SIGKILL too), and removed by a holder that releases it. A file that names a holder while nobody holds
+  the ``flock`` is a stale lock, left by a killed writer; the next writer takes it over and names the dead
+  holder in a warning.
 * Object stores (fsspec URLs): a conditional create (the file is created only if absent). A file left by a
   writer whose process is gone on this same host is stale and taken over; one from another host is refused
   with its holder named, to be removed by hand when that writer is known to be gone.
@@ -168,9 +169,13 @@ class DatasetLock:
             return
         del _HELD[self.key]
         if hold.fd is not None:
-            # empty the file before unlocking: a lock file that still names a holder is a stale one
-            os.ftruncate(hold.fd, 0)
-            self._undo_root()  # while still holding the flock
+            # remove the file while still holding it (a waiter that opened it sees it gone and retries); a lock
+            # file that outlives its writer is therefore a stale one
+            try:
+                os.unlink(self.loc.join(LOCK_NAME))
+            except FileNotFoundError:
+                pass
+            self._undo_root()
             os.close(hold.fd)  # releases the flock
             return
         if not self.loc.is_local:
@@ -181,25 +186,35 @@ class DatasetLock:
 
     def _acquire_flock(self, created_root: bool) -> int:
         path = self.loc.join(LOCK_NAME)
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as error:
-            if created_root:
-                _remove_if_empty(self.loc)
-            raise DatasetError(f"{path}: cannot create the writer lock ({error.strerror or error})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as error:
-            holder = LockHolder.parse(_read_fd(fd))
-            os.close(fd)
-            if error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise DatasetLockedError(_locked_message(self.loc.url, holder, None)) from None
-            raise DatasetError(f"{path}: cannot lock ({error.strerror or error})") from None
-        self.stale = LockHolder.parse(_read_fd(fd))
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, LockHolder.current().to_bytes(), 0)
-        os.fsync(fd)
-        return fd
+        for _attempt in range(10):
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as error:
+                if created_root:
+                    _remove_if_empty(self.loc)
+                raise DatasetError(f"{path}: cannot create the writer lock ({error.strerror or error})") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as error:
+                holder = LockHolder.parse(_read_fd(fd))
+                os.close(fd)
+                if error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise DatasetLockedError(_locked_message(self.loc.url, holder, None)) from None
+                raise DatasetError(f"{path}: cannot lock ({error.strerror or error})") from None
+            # a holder removes the file when it releases: the file locked must still be the one at the path
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(path))
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(fd)
+                continue
+            self.stale = LockHolder.parse(_read_fd(fd))
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, LockHolder.current().to_bytes(), 0)
+            os.fsync(fd)
+            return fd
+        raise DatasetLockedError(_locked_message(self.loc.url, None, None))
 
     # object stores: conditional create -------------------------------------------------------------------------
 

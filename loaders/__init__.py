@@ -9,7 +9,17 @@
 serves policy-learning windows (observation history, action chunk, padding masks) with normalisation
 statistics saved in each dataset's ``meta/stats.json``. Both work with ``DataLoader(num_workers > 0)``,
 both storage backends and several datasets at once. See ``docs/loaders.md``.
+
+PyTorch is an optional extra: the rest of univtac-data (generate, validate, convert, ...) runs without it.
 """
+
+try:
+    import torch  # noqa: F401
+except ModuleNotFoundError as _error:
+    if _error.name != "torch":
+        raise
+    raise ModuleNotFoundError("univtac_data.loaders needs PyTorch, which is not installed: "
+                              "pip install 'univtac-data[torch]' (or [train])", name="torch") from None
 
 from univtac_data.loaders.batching import SensorBatchSampler
 from univtac_data.loaders.episodes import EpisodeReader, EpisodeRef, select_episodes

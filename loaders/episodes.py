@@ -30,7 +30,8 @@ from typing import Any, Union
 
 import numpy as np
 
-from univtac_data.storage import Dataset
+from univtac_data.episode import Episode, resolve_shape
+from univtac_data.storage import CorruptFileError, Dataset, DatasetError
 from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle, residual_chain_error
 from univtac_data.storage.hdf5_store import HDF5Handle
 from univtac_data.schema.fields import field_for_path
@@ -68,6 +69,26 @@ def as_path_list(path_or_paths: PathLike | Sequence[PathLike]) -> list[str]:
     return paths
 
 
+def check_layouts(handle: EpisodeHandle, dataset: Dataset) -> None:
+    """Raise ``CorruptFileError`` naming the file when an array's stored dtype or shape is not its field's (from
+    the arrays' metadata only; values are checked by ``univtac-data validate``, not here)."""
+    profile = dataset.sensor(handle.meta.sensor)
+    expected = Episode(meta=handle.meta).expected_paths()
+    for path in handle.paths():
+        spec = expected.get(path)
+        if spec is None:
+            continue  # a field a newer minor version added: readers ignore it
+        shape, dtype = handle.layout(path)
+        allowed = ("uint8", "bool") if spec.dtype == "bool" else (spec.dtype,)
+        if str(dtype) not in allowed:
+            raise CorruptFileError(f"{handle.where}: {path} is stored as {dtype}, the format says {spec.dtype}; "
+                                   f"run 'univtac-data validate'")
+        want = resolve_shape(spec, path, handle.meta, profile)
+        if tuple(shape) != want:
+            raise CorruptFileError(f"{handle.where}: {path} has shape {tuple(shape)}, the format says {want}; "
+                                   f"run 'univtac-data validate'")
+
+
 def select_episodes(datasets: Sequence[Dataset], *, episodes: Sequence[str] | None = None, split: Split = "all",
                     val_fraction: float = 0.1, split_seed: int = 0, sensors: Sequence[str] | None = None,
                     names: Sequence[str] | None = None) -> list[EpisodeRef]:
@@ -78,6 +99,10 @@ def select_episodes(datasets: Sequence[Dataset], *, episodes: Sequence[str] | No
     kept episode is opened once here, for its pads and cameras, and closed again.
     """
     check_split(split)
+    for ds in datasets:
+        if not ds.index_found:
+            raise DatasetError(f"{ds.loc.url_of('meta/episodes.parquet')}: the dataset's index is missing; "
+                               f"rebuild it with 'univtac-data reindex {ds.loc.url}'")
     wanted = set(episodes) if episodes is not None else None
     if wanted is not None:
         known = {eid for ds in datasets for eid in ds.index}
@@ -99,6 +124,7 @@ def select_episodes(datasets: Sequence[Dataset], *, episodes: Sequence[str] | No
                 continue
             with ds.open_episode(episode_id) as handle:
                 meta, paths = handle.meta, frozenset(handle.paths())
+                check_layouts(handle, ds)
             refs.append(EpisodeRef(dataset=k, episode_id=episode_id, n_frames=row.n_frames, sensor=row.sensor,
                                    name=row.name, pads=tuple(meta.pads), cameras=tuple(c.name for c in meta.cameras),
                                    paths=paths, sha256=row.sha256))

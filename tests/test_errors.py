@@ -157,8 +157,12 @@ def test_reindex_reports_an_unreadable_episode_and_keeps_the_rest(tmp_path):
     assert Dataset.open(root).episode_ids == ["ep0"]
 
 
-def test_convert_stops_on_a_corrupt_source(tmp_path):
-    root = make_dataset(tmp_path / "ds", "hdf5", 2)
+def test_convert_skips_a_corrupt_source_episode_and_exits_1(tmp_path):
+    root = make_dataset(tmp_path / "ds", "hdf5", 3)
     episode_file(root, "hdf5", "ep1").write_bytes(b"junk")
-    assert_one_line_error(cli("convert", str(root), str(tmp_path / "out"), "--to", "zarr"), "ep1.h5")
-    assert Dataset.open(tmp_path / "out").episode_ids == ["ep0"]  # complete episodes only
+    result = cli("convert", str(root), str(tmp_path / "out"), "--to", "zarr")
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    failed = [line for line in result.stderr.splitlines() if line.startswith("failed: ")]
+    assert len(failed) == 1 and "ep1.h5: not a readable HDF5 file" in failed[0], result.stderr
+    assert "2 converted, 0 already converted, 1 failed" in result.stdout
+    assert Dataset.open(tmp_path / "out").episode_ids == ["ep0", "ep2"]  # the rest converted, complete only

@@ -21,11 +21,6 @@ def test_ci_runs_the_readme_test_command():
     assert test_command in ci, ".ci/run must run the README's test command verbatim"
 
 
-def test_readme_main_command_installs_torch_first():
-    main = _bash_blocks()[0]
-    assert main.index("pip install torch==2.13.0") < main.index("pip install -e .")
-
-
 def test_readme_python_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     make_dataset(tmp_path / "out/indenters", "hdf5", 4, n_frames=12)  # stands in for the generated corpus
@@ -38,6 +33,7 @@ def test_readme_python_examples_run(tmp_path, monkeypatch):
     DatasetWriter.open(tmp_path / "out/lift_can").add(demo)  # stands in for `generate task lift_can`
     examples = re.findall(r"```python\n(.*?)\n```", (ROOT / "README.md").read_text(), flags=re.S)
     assert examples
-    for example in examples:
-        exec(compile(example, "README.md", "exec"), {})
+    for _run in range(2):  # the examples run twice (a rerun must not fail: no EpisodeExistsError)
+        for example in examples:
+            exec(compile(example, "README.md", "exec"), {})
     assert (tmp_path / "out/copy/episodes/ep0.zarr").is_dir()

@@ -18,6 +18,7 @@ from test_validate_support import (
     flip_byte,
     hdf5_chunk_offset,
     replace_array,
+    set_version_attr,
 )
 
 from univtac_data.storage import CorruptFileError, DatasetNotFoundError, FormatVersionError, NotADatasetError
@@ -159,6 +160,16 @@ def test_episode_of_another_major_version(root, storage):
     assert {"schema.format_version", "schema.checksums"} == failing(report, "ep1")
     assert "3.0" in report.episodes["ep1"].check("schema.format_version").findings[0].message
     assert report.episodes["ep0"].ok
+
+
+@pytest.mark.parametrize("attr", [None, "1.0"])
+def test_the_files_own_format_version_attribute_is_checked(root, storage, attr):
+    set_version_attr(root, storage, "ep1", attr)
+    report = validate(root)
+    assert "schema.format_version" in failing(report, "ep1") and report.episodes["ep0"].ok  # (and checksums)
+    message = report.episodes["ep1"].check("schema.format_version").findings[0].message
+    assert ("no format_version attribute" if attr is None else
+            "format_version attribute is '1.0', its metadata says '2.0'") in message, message
 
 
 def test_episode_of_a_newer_minor_version_is_read(root, storage):

@@ -82,18 +82,41 @@ def replace_array(root: Path, storage: str, episode_id: str, path: str, array: n
 
 
 def edit_meta(root: Path, storage: str, episode_id: str, **changes: object) -> None:
-    """Edit the stored metadata JSON (HDF5 root attribute / Zarr group attribute ``univtac_meta``)."""
+    """Edit the stored metadata JSON (HDF5 root attribute / Zarr group attribute ``univtac_meta``); a new
+    ``format_version`` goes to the file's own ``format_version`` attribute too, as a writer of it would."""
     target = episode_path(root, storage, episode_id)
     if storage == "hdf5":
         with h5py.File(target, "r+") as handle:
             meta = json.loads(handle.attrs["univtac_meta"])
             meta.update(changes)
             handle.attrs["univtac_meta"] = json.dumps(meta)
+    else:
+        group = zarr.open_group(zarr.storage.LocalStore(str(target)), mode="r+", zarr_format=3)
+        meta = dict(group.attrs["univtac_meta"])  # type: ignore[arg-type]
+        meta.update(changes)
+        group.attrs["univtac_meta"] = meta
+    if "format_version" in changes:
+        set_version_attr(root, storage, episode_id, str(changes["format_version"]))
+
+
+def set_version_attr(root: Path, storage: str, episode_id: str, value: str | None) -> None:
+    """Set (or with None delete) the episode file's own ``format_version`` attribute."""
+    target = episode_path(root, storage, episode_id)
+    if storage == "hdf5":
+        with h5py.File(target, "r+") as handle:
+            if value is None:
+                del handle.attrs["format_version"]
+            else:
+                handle.attrs["format_version"] = value
         return
     group = zarr.open_group(zarr.storage.LocalStore(str(target)), mode="r+", zarr_format=3)
-    meta = dict(group.attrs["univtac_meta"])  # type: ignore[arg-type]
-    meta.update(changes)
-    group.attrs["univtac_meta"] = meta
+    attrs = dict(group.attrs)
+    if value is None:
+        attrs.pop("format_version")
+    else:
+        attrs["format_version"] = value
+    group.attrs.clear()
+    group.attrs.update(attrs)
 
 
 def flip_byte(path: Path, offset: int, xor: int = 0xFF) -> None:

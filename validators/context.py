@@ -79,6 +79,7 @@ class EpisodeContext:
     read_problems: list[Finding] = field(default_factory=list)
     structure_problem: str | None = None  # the array listing itself failed
     source: EpisodeSource | None = None  # where the episode sits in the dataset (index row, manifest)
+    version_attr: object = None  # the file's own format_version attribute (None: absent)
 
     @property
     def n_frames(self) -> int:
@@ -204,7 +205,7 @@ def load_context(handle: EpisodeHandle, source: EpisodeSource, profile: SensorPr
     from univtac_data.validators.frames import scan_streamed
 
     ctx = EpisodeContext(episode_id=source.episode_id, where=handle.where, meta=handle.meta, profile=profile,
-                         info=info, config=config, source=source)
+                         info=info, config=config, source=source, version_attr=handle.version_attr)
     _inspect_fields(ctx, handle)
     streamed = []
     for path, state in ctx.fields.items():

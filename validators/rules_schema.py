@@ -24,7 +24,8 @@ def readable(ctx: EpisodeContext) -> list[Finding]:
 
 @rule("schema.format_version", "schema")
 def format_version(ctx: EpisodeContext) -> list[Finding]:
-    """The episode's format version has this reader's major version (a newer minor is read, extras ignored)."""
+    """The episode's format version has this reader's major version (a newer minor is read, extras ignored),
+    and the file's own format_version attribute is present and says the same as its metadata."""
     # Opening an episode of another major version fails before a context exists, and the runner reports
     # that under this rule; this covers a context built some other way.
     major = parse_format_version(ctx.meta.format_version)[0]
@@ -32,6 +33,12 @@ def format_version(ctx: EpisodeContext) -> list[Finding]:
         readable = " and ".join(f"{m}.x" for m in sorted(READABLE_MAJORS))
         return [Finding(message=f"{ctx.where}: written in format {ctx.meta.format_version}; this reader reads "
                                 f"format {readable} only", field="format_version")]
+    if ctx.version_attr is None:
+        return [Finding(message=f"{ctx.where}: the file has no format_version attribute (its metadata says "
+                                f"{ctx.meta.format_version})", field="format_version")]
+    if str(ctx.version_attr) != ctx.meta.format_version:
+        return [Finding(message=f"{ctx.where}: the file's format_version attribute is {ctx.version_attr!r}, its "
+                                f"metadata says {ctx.meta.format_version!r}", field="format_version")]
     return []
 
 

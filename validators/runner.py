@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import sys
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
+from univtac_data.progress import Progress
 from univtac_data.schema.sensors import SensorProfile
 from univtac_data.storage.dataset import Dataset, episode_relpath
 from univtac_data.storage.errors import DatasetError, FormatVersionError
@@ -172,11 +172,9 @@ def _pool_context() -> multiprocessing.context.BaseContext:
     return multiprocessing.get_context("spawn")
 
 
-def _progress(total: int, enabled: bool):  # type: ignore[no-untyped-def]
-    from tqdm import tqdm
-
-    # disable=None: tqdm turns itself off when stderr is not a terminal
-    return tqdm(total=total, unit="episode", file=sys.stderr, disable=None if enabled else True, leave=False)
+def _progress(total: int, enabled: bool) -> Progress:
+    # a bar on a terminal, plain lines every few seconds in a log
+    return Progress(total, desc="validate", enabled=enabled)
 
 
 def validate(path: str | os.PathLike[str], *, groups: Iterable[str] | str | None = None,
@@ -187,7 +185,7 @@ def validate(path: str | os.PathLike[str], *, groups: Iterable[str] | str | None
     groups: rule groups to run ('schema', 'safety', 'physics'); None runs all. Read failures are always
     reported (rule ``schema.readable``). episodes: ids to check (default: every indexed episode; an id not
     in the index is reported as failing). workers: processes checking episodes in parallel. progress: a
-    tqdm bar on stderr when it is a terminal.
+    tqdm bar on stderr when it is a terminal, plain periodic lines when it is not.
 
     Raises ``DatasetError`` (one line naming the file) when the dataset itself is unusable: missing path,
     not a dataset, unreadable info.json or index, another major format version. Bad episodes never raise.

@@ -10,22 +10,21 @@ With ``keep_failures`` failed or unsafe episodes are kept too, flagged (``succes
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from univtac_data.episode import Episode
 from univtac_data.generators.allocator import keep_freed_memory
-from univtac_data.generators.runner import run_specs
+from univtac_data.generators.runner import check_executor, run_specs
 from univtac_data.generators.scene.recording import build_episode
 from univtac_data.generators.scene.threads import one_blas_thread
 from univtac_data.generators.tasks.base import EVAL_SEED_BASE, ExpertContext, TaskConfig
 from univtac_data.generators.tasks.registry import make_task
+from univtac_data.progress import Progress
 from univtac_data.generators.tasks.session import TaskSession
 from univtac_data.schema.models import GeneratorInfo
 from univtac_data.storage import DatasetWriter, Location, WrittenEpisode, discard_staged, publish_staged, write_episode_file
@@ -171,8 +170,37 @@ def collect(url: str, task: str, episodes: int, *, config: TaskConfig, base_seed
     make_task(task, config)  # unknown task or bad settings fail before anything is written
     if not 0 <= base_seed < EVAL_SEED_BASE:
         raise DatasetError(f"--seed must be in [0, {EVAL_SEED_BASE}) (evaluation seeds start at {EVAL_SEED_BASE})")
-    writer = DatasetWriter.open(url, storage=storage, sensors=[config.sensor])
+    check_executor(executor, ray_address)
+    with DatasetWriter.open(url, storage=storage, sensors=[config.sensor]) as writer:  # one writer per dataset
+        summary = _collect_into(writer, url, task, episodes, config, base_seed, storage, workers, executor,
+                                ray_address, keep_failures, compression_level, max_seeds, progress)
+        writer.recover()  # temporaries of seeds still running when the run had enough
+    return summary
+
+
+def _check_same_settings(writer: DatasetWriter, rows: list[Any], task: str, config: TaskConfig) -> None:
+    """Refuse to add episodes made with other settings to this task's episodes: every row's rate from the
+    index (cheap), and one episode's stored settings (all of a task's episodes in a dataset share them)."""
+    for row in rows:
+        if abs(row.nominal_rate_hz - config.rate_hz) > 1e-9:
+            raise DatasetError(f"{writer.loc.url_of(row.path)}: recorded at {row.nominal_rate_hz} Hz, this run asks "
+                               f"for {config.rate_hz} Hz; rerun with the same options or choose a new --out")
+    if not rows:
+        return
+    with writer.store.open(writer.loc, rows[0].path) as handle:
+        stored = handle.meta.generator.settings
+    wanted = _jsonable({"task": task, **asdict(config)})
+    for key, value in wanted.items():
+        if key in stored and stored[key] != value:
+            raise DatasetError(f"{writer.loc.url_of(rows[0].path)}: made with {key}={stored[key]!r}, this run asks "
+                               f"for {key}={value!r}; rerun with the same options or choose a new --out")
+
+
+def _collect_into(writer: DatasetWriter, url: str, task: str, episodes: int, config: TaskConfig, base_seed: int,
+                  storage: str, workers: int, executor: str, ray_address: str | None, keep_failures: bool,
+                  compression_level: int, max_seeds: int | None, progress: bool) -> CollectSummary:
     mine = [row for row in writer.index.values() if row.kind == "task" and row.name == task and row.sensor == config.sensor]
+    _check_same_settings(writer, mine, task, config)
     done = sum(1 for row in mine if row.success)
     summary = CollectSummary(task, episodes, done)
     if done >= episodes:
@@ -182,8 +210,7 @@ def collect(url: str, task: str, episodes: int, *, config: TaskConfig, base_seed
     last_seed = min(start_seed + limit, EVAL_SEED_BASE)
     specs = (TaskEpisodeSpec(task, seed, config) for seed in range(start_seed, last_seed))
     loc = Location.parse(url)
-    bar = tqdm(total=episodes, initial=done, unit="episode", desc=f"generate {task}", disable=not progress,
-               file=sys.stderr, dynamic_ncols=True)
+    bar = Progress(episodes, initial=done, desc=f"generate {task}", enabled=progress)
     t0 = time.perf_counter()
     waiting: dict[int, SeedResult | BaseException] = {}
     next_seed = start_seed
@@ -207,9 +234,8 @@ def collect(url: str, task: str, episodes: int, *, config: TaskConfig, base_seed
                     if result.kept:
                         summary.kept += 1
                         done += 1
-                        bar.update(1)
+                        bar.update(1, tried=summary.tried, success=f"{summary.success_rate:.0%}")
                 next_seed += 1
-                bar.set_postfix(tried=summary.tried, success=f"{summary.success_rate:.0%}")
             if done >= episodes:
                 break
     finally:
@@ -221,5 +247,4 @@ def collect(url: str, task: str, episodes: int, *, config: TaskConfig, base_seed
                 discard_staged(loc, leftover.written)
         bar.close()
         summary.elapsed_s = time.perf_counter() - t0
-    writer.recover()  # temporaries of seeds still running when the run had enough
     return summary

@@ -13,18 +13,43 @@ from univtac_data.storage.errors import DatasetError
 DEFAULT_OUT = "out/indenters"
 
 
+EXAMPLES = """examples:
+  univtac-data generate indenters                                   the default corpus in out/indenters
+  univtac-data generate indenters --sensor all --episodes-per-shape 10 --workers 8 --out out/big
+  univtac-data generate indenters --shapes sphere,cone --contact elastic --format zarr --out out/elastic
+  univtac-data list shapes                                          the names --shapes accepts
+  univtac-data generate task lift_can --episodes 10 --out out/lift_can   expert demonstrations of a task
+  univtac-data generate task all --episodes 5 --no-cameras          every task, no camera images
+
+One writer per dataset: a second run into the same --out is refused while the first runs (exit 2)."""
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (got {text!r})") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (got {value})")
+    return value
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("generate", help="generate a dataset (indenters: the encoder corpus; task: expert demonstrations)")
+    parser = subparsers.add_parser("generate", help="generate a dataset (indenters: the encoder corpus; task: expert demonstrations)",
+                                   description="Generate a dataset in MuJoCo on the CPU.", epilog=EXAMPLES,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     kinds = parser.add_subparsers(dest="kind", metavar="KIND", required=True)
     ind = kinds.add_parser(
         "indenters", help="a gripper pressing, twisting and shifting against the 14 indenters",
         description="Generate indenter episodes: closed-loop grasps to a random depth, then small rotations and "
                     "moves that shear the gel. Rerun the same command to resume after an interruption.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ind.add_argument("--out", default=DEFAULT_OUT, help=f"dataset directory or URL (default {DEFAULT_OUT})")
     ind.add_argument("--sensor", default="gelsight_mini", choices=[*SENSORS, "all"],
                      help="sensor model, or all three (default gelsight_mini)")
-    ind.add_argument("--shapes", default="all", help="'all' or a comma-separated list of indenter names")
+    ind.add_argument("--shapes", default="all",
+                     help="'all' or a comma-separated list of indenter names (univtac-data list shapes)")
     ind.add_argument("--episodes-per-shape", type=int, default=2, help="episodes per shape and sensor (default 2)")
     ind.add_argument("--frames-per-episode", type=int, default=60, help="recorded frames per episode (default 60)")
     ind.add_argument("--rate", type=float, default=60.0, help="recording rate, Hz (default 60)")
@@ -36,7 +61,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                           "calibrated against the half-space) (default half_space)")
     ind.add_argument("--seed", type=int, default=0, help="base seed; each episode derives its own (default 0)")
     ind.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
-    ind.add_argument("--workers", type=int, default=None, help="parallel workers (default: the CPU count)")
+    ind.add_argument("--workers", type=_positive, default=None, metavar="N",
+                     help="parallel workers, at least 1 (default: the CPU count)")
     ind.add_argument("--executor", choices=("local", "ray"), default="local",
                      help="a local process pool, or Ray tasks (default local)")
     ind.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
@@ -114,7 +140,7 @@ def run_task(args: argparse.Namespace) -> int:
         summary = collect(out, name, args.episodes, config=config, base_seed=args.seed, storage=args.format,
                           workers=workers, executor=args.executor, ray_address=args.ray_address,
                           keep_failures=args.keep_failures, compression_level=args.compression_level,
-                          max_seeds=args.max_seeds, progress=sys.stderr.isatty())
+                          max_seeds=args.max_seeds, progress=True)
         have = summary.already + summary.kept
         print(f"{out}: {name}: {have} of {args.episodes} successful episodes; this run tried {summary.tried} seeds, "
               f"kept {summary.kept} (expert success {summary.success_rate:.0%}), {summary.frames} frames in "
@@ -162,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
                          record_rate_hz=args.rate)
     workers = args.workers if args.workers is not None else default_workers()
     summary = run_corpus(args.out, specs, storage=args.format, workers=workers, executor=args.executor,
-                         ray_address=args.ray_address, progress=sys.stderr.isatty(),
+                         ray_address=args.ray_address, progress=True,
                          compression_level=args.compression_level)
     dataset = Dataset.open(args.out)
     frames = sum(r.n_frames for r in dataset.index.values())

@@ -1,9 +1,14 @@
-"""``univtac-data info PATH [--json]``: what a dataset holds."""
+"""``univtac-data info PATH [--json]``: what a dataset holds, and whether its files are all there.
+
+Exit status: 0 the summary, nothing wrong seen; 1 the summary with warnings (an indexed file missing or of
+another size than the manifest records, no index, episodes that disagree on their settings); 2 unusable input.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import Counter
 from typing import Any
 
@@ -11,7 +16,13 @@ from univtac_data.storage import Dataset
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("info", help="summarise a dataset: episodes, frames, size, sensors, tasks")
+    parser = subparsers.add_parser(
+        "info", help="summarise a dataset: episodes, frames, size, sensors, tasks; check its files are there",
+        description="Summarise a dataset from its index, and check cheaply (sizes, no hashing) that every indexed "
+                    "file is there with the size the manifest records. Exit 0: fine; 1: warnings (printed on "
+                    "stderr; run 'univtac-data validate' for the deep check); 2: unusable input.",
+        epilog="examples:\n  univtac-data info out/indenters\n  univtac-data info out/indenters --json | jq .episodes",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("path", help="dataset directory or fsspec URL")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     return parser
@@ -38,6 +49,36 @@ def summarise(dataset: Dataset) -> dict[str, Any]:
     }
 
 
+# per kind, the index fields every episode of one folder should share (task episodes end when they succeed, so
+# only indenter episodes must have equal lengths)
+SHARED_FIELDS = {"indenter": ("format_version", "nominal_rate_hz", "n_frames"), "task": ("format_version", "nominal_rate_hz")}
+
+
+def disagreements(dataset: Dataset) -> list[str]:
+    """One line per index field that the folder's episodes of one kind should share but do not."""
+    out = []
+    rows = list(dataset.index.values())
+    for kind in sorted({r.kind for r in rows}):
+        mine = [r for r in rows if r.kind == kind]
+        for key in SHARED_FIELDS.get(kind, ("format_version", "nominal_rate_hz")):
+            values = Counter(getattr(r, key) for r in mine)
+            if len(values) > 1:
+                listed = ", ".join(f"{v} ({n} episode{'s' if n > 1 else ''})" for v, n in sorted(values.items(), key=lambda kv: -kv[1]))
+                out.append(f"{dataset.loc.url}: {kind} episodes disagree on {key}: {listed} (a folder mixing runs "
+                           f"of different settings)")
+    return out
+
+
+def problems(dataset: Dataset) -> list[str]:
+    """Everything ``info`` warns about, one line each."""
+    out = []
+    if not dataset.index_found:
+        on_disk = len(dataset.episode_files_on_disk())
+        out.append(f"{dataset.loc.url_of('meta/episodes.parquet')}: the index is missing ({on_disk} episode files "
+                   f"on disk); run 'univtac-data reindex {dataset.loc.url}'")
+    return out + dataset.check_files() + disagreements(dataset)
+
+
 def _success_rate(rows: list[Any]) -> float | None:
     judged = [r.success for r in rows if r.success is not None]
     return round(sum(judged) / len(judged), 4) if judged else None
@@ -53,10 +94,14 @@ def _human(size: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    summary = summarise(Dataset.open(args.path))
+    dataset = Dataset.open(args.path)
+    summary = summarise(dataset)
+    warnings = problems(dataset)
+    for line in warnings:
+        print(f"warning: {line}", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary, indent=2))
-        return 0
+        print(json.dumps({**summary, "warnings": warnings}, indent=2))
+        return 1 if warnings else 0
     counts = lambda d: ", ".join(f"{k} ({v})" for k, v in d.items()) or "-"  # noqa: E731
     lines = [
         f"dataset         {summary['path']}",
@@ -71,4 +116,4 @@ def run(args: argparse.Namespace) -> int:
     if summary["success_rate"] is not None:
         lines.append(f"success rate    {summary['success_rate']:.1%}")
     print("\n".join(lines))
-    return 0
+    return 1 if warnings else 0

@@ -1,7 +1,8 @@
 """``univtac-data``: one entry point, one module per subcommand.
 
 Each subcommand module has ``add_parser(subparsers)`` and ``run(args) -> int``. Errors a user can cause
-(``DatasetError``) print one line and exit 2; anything else is a bug and keeps its traceback.
+(``DatasetError``) print one line and exit 2; Ctrl-C at any point (start-up included) prints one line and exits
+130; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -12,16 +13,28 @@ import os
 import sys
 from typing import NoReturn
 
-from univtac_data.storage.errors import DatasetError
 from univtac_data.version import FORMAT_VERSION, __version__
 
-SUBCOMMANDS = ("generate", "validate", "info", "convert", "reindex", "preview", "export", "evaluate")
+SUBCOMMANDS = ("generate", "validate", "info", "convert", "reindex", "preview", "export", "evaluate", "list")
+
+EXAMPLES = """examples:
+  univtac-data generate indenters                      make the default corpus in out/indenters
+  univtac-data validate out/indenters                  check it (exit 0 clean, 1 failures, 2 unusable input)
+  univtac-data info out/indenters                      episodes, frames, size; checks the files are all there
+  univtac-data preview out/indenters --gallery --out gallery.png
+  univtac-data convert out/indenters out/zarr --to zarr
+  univtac-data generate task lift_can --episodes 10    expert demonstrations of a benchmark task
+  univtac-data evaluate lift_can --policy expert       a policy's success rate on evaluation seeds
+  univtac-data list shapes                             names accepted by --shapes (also: sensors, tasks)
+
+Run 'univtac-data COMMAND --help' for a command's options and examples."""
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="univtac-data",
         description="Visuo-tactile robot data: generate, validate, inspect and convert univtac-data datasets.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"univtac-data {__version__} (format {FORMAT_VERSION})")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -33,6 +46,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("univtac-data: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
+    from univtac_data.storage.errors import DatasetError  # loads the storage stack: inside main's Ctrl-C guard
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -40,9 +63,6 @@ def main(argv: list[str] | None = None) -> int:
     except DatasetError as error:
         print(f"univtac-data: error: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("univtac-data: interrupted", file=sys.stderr)
-        return 130
 
 
 def entry() -> NoReturn:

@@ -9,6 +9,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from typing import Any
 
 import numpy as np
@@ -18,10 +20,41 @@ from univtac_data.storage import Dataset
 from univtac_data.storage.errors import DatasetError
 
 
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (got {text!r})") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (got {value})")
+    return value
+
+
+def check_output_file(path: str) -> None:
+    """Fail before any work when ``path`` cannot be written: a directory, or no write access where it goes."""
+    target = os.path.abspath(path)
+    if os.path.isdir(target):
+        raise DatasetError(f"{path}: is a directory; give a file name for --out")
+    parent = os.path.dirname(target)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise DatasetError(f"{path}: cannot write here ({parent} is not a directory)")
+    if not os.access(parent if not os.path.exists(target) else target, os.W_OK):
+        raise DatasetError(f"{path}: cannot write here (permission denied)")
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "preview", help="write a contact sheet PNG (I_marked, I_pure, depth, marker motion) of a dataset "
         "episode, or of a demo indenter pressed into a sensor",
+        description="Write a PNG: a few frames of one episode (I_marked, I_pure, depth map, marker motion), one "
+                    "tile per episode (--gallery; a damaged episode is skipped and reported, and the command "
+                    "then exits 1), or a demo press without any dataset.",
+        epilog="examples:\n  univtac-data preview out/indenters --out sheet.png\n"
+               "  univtac-data preview out/indenters --gallery --max-episodes 20 --out gallery.png\n"
+               "  univtac-data preview --sensor gelsight_mini --demo sphere --out demo.png",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("path", nargs="?", help="dataset directory or fsspec URL (omit with --demo)")
     parser.add_argument("--out", help="PNG file to write (a contact sheet)")
@@ -32,11 +65,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="log the episode for the Rerun viewer: images, depth, markers as points, poses as "
                              "transforms (needs the [rerun] extra; open with `rerun FILE.rrd`)")
     parser.add_argument("--episode", help="episode id (default: the first)")
-    parser.add_argument("--frames", type=int, default=4, help="frames shown, evenly spaced (default 4)")
+    parser.add_argument("--frames", type=_positive, default=4, help="frames shown, evenly spaced (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
     parser.add_argument("--gallery", action="store_true",
                         help="one tile per episode (its deepest press) instead of one episode's frames")
-    parser.add_argument("--max-episodes", type=int, default=42, help="gallery: episodes shown (default 42)")
+    parser.add_argument("--max-episodes", type=_positive, default=42, metavar="N",
+                        help="gallery: episodes shown, at least 1 (default 42)")
     parser.add_argument("--sensor", help=f"demo mode: sensor profile ({', '.join(SENSORS)})")
     parser.add_argument("--demo", help="demo mode: indenter (sphere, cylinder, punch, cross, two_spheres)")
     parser.add_argument("--method", choices=("geometric", "elastic"), default="elastic", help="demo contact model")
@@ -93,19 +127,28 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
     return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames)"
 
 
-def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarray, str]], str]:
-    """One tile per episode: I_marked at the frame of its deepest press."""
+def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarray, str]], str, list[str]]:
+    """One tile per episode: I_marked at the frame of its deepest press. A damaged episode is skipped and
+    reported (the third value: one line each)."""
     dataset = Dataset.open(path)
     if not dataset.episode_ids:
         raise DatasetError(f"{path}: the dataset has no episodes")
-    tiles = []
+    tiles, failed = [], []
     for episode_id in dataset.episode_ids[:limit]:
-        with dataset.open_episode(episode_id) as handle:
-            key = f"tactile/{pad if pad in handle.meta.pads else handle.meta.pads[0]}/"
-            deepest = int(np.argmax(handle.read(key + "depth_um").reshape(handle.meta.n_frames, -1).max(axis=1)))
-            tiles.append((handle.read(key + "marked_rgb", deepest), f"{handle.meta.name} ({handle.meta.sensor})"))
+        where = dataset.loc.url_of(dataset.index[episode_id].path)
+        try:
+            with dataset.open_episode(episode_id) as handle:
+                key = f"tactile/{pad if pad in handle.meta.pads else handle.meta.pads[0]}/"
+                deepest = int(np.argmax(handle.read(key + "depth_um").reshape(handle.meta.n_frames, -1).max(axis=1)))
+                tiles.append((handle.read(key + "marked_rgb", deepest), f"{handle.meta.name} ({handle.meta.sensor})"))
+        except Exception as error:  # any reader error of a damaged file: skip the episode, report it
+            text = str(error).splitlines()[0] if str(error) else type(error).__name__
+            failed.append(text if text.startswith(where) else f"{where}: {type(error).__name__}: {text}")
+    if not tiles:
+        raise DatasetError(f"{path}: no episode could be read ({failed[0]})")
     shown = min(limit, len(dataset))
-    return tiles, f"{path}: {shown} of {len(dataset)} episodes, I_marked at each episode's deepest press"
+    return tiles, f"{path}: {len(tiles)} of {len(dataset)} episodes, I_marked at each episode's deepest press", \
+        failed[: shown]
 
 
 def _write_atomic(out: str, suffix: str, write: Any) -> Any:
@@ -177,6 +220,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out is None:
         raise DatasetError("preview: give --out FILE.png, --video OUT.mp4 or --rerun FILE.rrd")
 
+    check_output_file(args.out)
     if args.demo is not None or args.sensor is not None:
         if args.path is not None:
             raise DatasetError(f"{args.path}: give either a dataset PATH or --sensor/--demo, not both")
@@ -185,9 +229,11 @@ def run(args: argparse.Namespace) -> int:
     elif args.path is None:
         raise DatasetError("preview: give a dataset PATH, or --sensor NAME --demo INDENTER")
     elif args.gallery:
-        tiles, title = _gallery_tiles(args.path, args.pad, args.max_episodes)
+        tiles, title, failed = _gallery_tiles(args.path, args.pad, args.max_episodes)
         print(f"wrote {image_gallery(tiles, args.out, title=title)}")
-        return 0
+        for line in failed:
+            print(f"skipped: {line}", file=sys.stderr)
+        return 1 if failed else 0
     else:
         frames, title = _dataset_frames(args.path, args.episode, args.frames, args.pad)
     out = contact_sheet(frames, args.out, title=title)

@@ -13,7 +13,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "reindex", help="rebuild meta/episodes.parquet and meta/manifest.json from the episodes on disk",
         description="Rebuild the index and the SHA-256 manifest from the episode files, hashing each. Removes "
-                    "temporaries left by killed writers. Do not run it while a writer is adding episodes.",
+                    "temporaries left by killed writers. Takes the dataset's writer lock: refused (exit 2) while "
+                    "a writer is adding episodes. Exit 1 when an episode file could not be indexed.",
+        epilog="examples:\n  univtac-data reindex out/indenters          after 'info' warns the index is missing",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("path", help="dataset directory or fsspec URL")
     return parser

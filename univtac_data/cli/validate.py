@@ -43,8 +43,13 @@ def _workers(text: str) -> int:
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "validate", help="check a dataset: schema, safety limits and physical invariants",
-        description="Check every episode of a dataset. Exit 0: all checks hold; 1: an episode fails; "
-                    "2: the input is unusable.")
+        description="Check every episode of a dataset: decode every chunk, hash every byte, run the named rules "
+                    "of spec/validation.md. Exit 0: all checks hold; 1: an episode fails; 2: the input is "
+                    "unusable (or bad usage).",
+        epilog="examples:\n  univtac-data validate out/indenters\n"
+               "  univtac-data validate out/indenters --json --workers 2 --groups safety,physics\n"
+               "  univtac-data validate out/indenters --episodes gelsight_mini-cone-0000",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("path", help="dataset directory or fsspec URL")
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
     parser.add_argument("--workers", type=_workers, default=1, metavar="N",
@@ -85,7 +90,16 @@ def format_table(report: Report) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from univtac_data.storage import Dataset
+
     try:
+        if args.episodes is not None:  # an unknown id is bad usage (exit 2), not a failing episode
+            known = Dataset.open(args.path).index
+            unknown = [e for e in args.episodes if e not in known]
+            if unknown:
+                listed = ", ".join(sorted(known)[:5]) + (" ..." if len(known) > 5 else "")
+                raise DatasetError(f"{args.path}: --episodes: no episode {', '.join(map(repr, unknown))} in the "
+                                   f"index (episodes: {listed or 'none'})")
         report = validate(args.path, groups=args.groups, episodes=args.episodes, workers=args.workers,
                           progress=True)
     except DatasetError as error:

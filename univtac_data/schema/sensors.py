@@ -1,6 +1,6 @@
 """Sensor profiles: the three visuo-tactile sensors as data.
 
-Figures are public (UniVTAC configs, vendor pages; see ``../shared/design/tactile-physics.md``). The
+Figures are public (UniVTAC configs, vendor pages; the source is written beside each number). The
 elastic constants are our choice for soft silicone (no vendor publishes them); the source is written
 beside each number. Geometry conventions, used by every module:
 
@@ -132,7 +132,8 @@ class SensorProfile(BaseModel):
 _DERIVED = ("fx_px", "fy_px", "cx_px", "cy_px", "n_markers")
 
 _SILICONE_NOTE = (
-    "E: soft silicone, order 0.1-1 MPa (tactile-physics.md); our choice, no vendor figure. "
+    "E: soft silicone, order 0.1-1 MPa (the range of silicone elastomers used for gel pads); our choice, no "
+    "vendor figure. "
     "nu: near-incompressible silicone (0.45-0.5)."
 )
 

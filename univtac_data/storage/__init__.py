@@ -20,9 +20,11 @@ from univtac_data.storage.errors import (
     NotADatasetError,
 )
 from univtac_data.storage.fs import Location
+from univtac_data.storage.lock import DatasetLock, DatasetLockedError, LockHolder
 
 __all__ = [
-    "STORES", "CorruptFileError", "Dataset", "DatasetError", "DatasetNotFoundError", "DatasetWriter",
+    "STORES", "CorruptFileError", "Dataset", "DatasetError", "DatasetLock", "DatasetLockedError", "DatasetNotFoundError",
+    "DatasetWriter", "LockHolder",
     "EpisodeExistsError", "EpisodeHandle", "EpisodeStore", "FormatVersionError", "Location", "NotADatasetError",
     "ReindexReport", "WrittenEpisode", "discard_staged", "publish_staged", "write_episode_file",
 ]

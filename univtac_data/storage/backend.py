@@ -76,6 +76,7 @@ class EpisodeHandle(ABC):
 
     meta: EpisodeMeta
     where: str
+    version_attr: Any = None  # the file's (group's) own ``format_version`` attribute as stored; None when absent
 
     def __init__(self) -> None:
         self._residual_bases: dict[str, str | None] = {}  # path -> checked residual base (None: stored as is)

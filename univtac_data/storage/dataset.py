@@ -39,7 +39,9 @@ from univtac_data.storage.errors import (
 )
 from univtac_data.storage.fs import TMP_PREFIX, Location, fsync_dir
 from univtac_data.storage.hdf5_store import HDF5Store
+from univtac_data.storage.lock import LOCK_NAME, DatasetLock
 from univtac_data.storage.index import (
+    INDEX_PATH,
     INFO_PATH,
     read_index,
     read_manifest,
@@ -188,6 +190,7 @@ class Dataset:
         self.info = info
         self.index = index
         self.store = get_store(info.storage)
+        self.index_found = True  # False: meta/episodes.parquet is missing (``open`` then has an empty index)
 
     @classmethod
     def open(cls, path: str | os.PathLike[str]) -> Dataset:
@@ -198,7 +201,9 @@ class Dataset:
         if not loc.exists(INFO_PATH):
             raise NotADatasetError(f"{loc.url}: not a univtac-data dataset (no {INFO_PATH})")
         info = read_info(loc)
-        return cls(loc, info, read_index(loc))
+        dataset = cls(loc, info, read_index(loc))
+        dataset.index_found = loc.exists(INDEX_PATH)
+        return dataset
 
     @property
     def episode_ids(self) -> list[str]:
@@ -233,6 +238,37 @@ class Dataset:
     def manifest(self) -> Manifest:
         return read_manifest(self.loc)
 
+    def episode_files_on_disk(self) -> list[str]:
+        """Names of the finished episode files (or Zarr groups) under ``episodes/``, indexed or not."""
+        return [n for n in self.loc.listdir(EPISODES_DIR) if not n.startswith(TMP_PREFIX) and n.endswith(self.store.suffix)]
+
+    def check_files(self) -> list[str]:
+        """One line per indexed episode file that is missing, or whose size differs from the manifest (a cheap
+        check from one directory listing: no file is opened or hashed; ``validate`` is the deep check)."""
+        manifest = self.manifest()
+        sizes: dict[str, int] = {}
+        if self.loc.exists(EPISODES_DIR):
+            prefix = self.loc.root.rstrip("/") + "/"
+            for path, detail in self.loc.fs.find(self.loc.join(EPISODES_DIR), detail=True).items():
+                sizes[path[len(prefix):] if path.startswith(prefix) else path.lstrip("/")] = int(detail["size"])
+        by_episode: dict[str, list[str]] = {}
+        for rel, entry in manifest.files.items():
+            by_episode.setdefault(entry.episode_id, []).append(rel)
+        problems = []
+        for episode_id, row in sorted(self.index.items()):
+            files = by_episode.get(episode_id)
+            if not files:
+                problems.append(f"{self.loc.url_of(row.path)}: indexed but not in the manifest")
+                continue
+            for rel in sorted(files):
+                entry = manifest.files[rel]
+                if rel not in sizes:
+                    problems.append(f"{self.loc.url_of(rel)}: indexed but the file is missing")
+                elif sizes[rel] != entry.bytes:
+                    problems.append(f"{self.loc.url_of(rel)}: {sizes[rel]} bytes, the manifest says {entry.bytes} "
+                                    f"(truncated or replaced)")
+        return problems
+
     def verify_checksums(self, episode_ids: list[str] | None = None) -> list[str]:
         """One line per file whose SHA-256 or size differs from the manifest, or that is missing."""
         manifest = self.manifest()
@@ -259,23 +295,46 @@ class ReindexReport:
 
 
 class DatasetWriter:
-    """Owns a dataset's ``meta/`` files while episodes are added. One writer per dataset; workers may
-    write episode files in parallel with ``write_episode_file`` and hand the results to ``commit``."""
+    """Owns a dataset's ``meta/`` files while episodes are added. One writer per dataset, enforced by the
+    dataset's ``DatasetLock`` (taken by ``open``, released by ``close`` or at process exit); workers may write
+    episode files in parallel with ``write_episode_file`` and hand the results to ``commit``."""
 
-    def __init__(self, loc: Location, info: DatasetInfo, *, read_existing: bool = True) -> None:
+    def __init__(self, loc: Location, info: DatasetInfo, *, read_existing: bool = True,
+                 lock: DatasetLock | None = None) -> None:
         self.loc = loc
         self.info = info
         self.store = get_store(info.storage)
+        self.lock = lock
         self.index = read_index(loc) if read_existing else {}
         self.manifest = read_manifest(loc) if read_existing else Manifest()
+        self._dropped: set[str] = set()  # ids this writer removed on purpose (not merged back by ``commit``)
+        self._index_seen = self._index_signature()
 
     @classmethod
     def open(cls, path: str | os.PathLike[str], storage: str = "hdf5", sensors: list[str] | None = None, *,
-             recover: bool = True) -> DatasetWriter:
+             recover: bool = True, lock: bool = True) -> DatasetWriter:
         """Create the dataset at ``path``, or reopen it to add episodes (resume). Reopening removes
-        leftovers of killed writers and indexes finished episodes that missed the index (``recover``)."""
+        leftovers of killed writers and indexes finished episodes that missed the index (``recover``).
+
+        ``lock``: take the dataset's writer lock first; a second writer (another process) is refused with
+        ``DatasetLockedError`` naming the holder. Call ``close`` (or use ``with``) to release it early.
+        """
         loc = Location.parse(path)
         get_store(storage)
+        held = DatasetLock(loc).acquire() if lock else None
+        try:
+            info = cls._open_info(loc, storage, sensors)
+            writer = cls(loc, info, lock=held)
+            if recover:
+                writer.recover()
+        except BaseException:
+            if held is not None:
+                held.release()
+            raise
+        return writer
+
+    @staticmethod
+    def _open_info(loc: Location, storage: str, sensors: list[str] | None) -> DatasetInfo:
         if loc.exists(INFO_PATH):
             info = read_info(loc)
             if info.storage != storage:
@@ -285,17 +344,26 @@ class DatasetWriter:
                     f"{loc.url}: holds a format {info.format_version} dataset; this writer writes format "
                     f"{FORMAT_VERSION}; convert it first: univtac-data convert {loc.url} NEW_PATH --to {storage}")
         else:
-            if loc.exists() and loc.listdir(""):
+            if loc.exists() and set(loc.listdir("")) - {LOCK_NAME}:
                 raise NotADatasetError(f"{loc.url}: directory is not empty and holds no univtac-data dataset")
             loc.makedirs("meta")
             info = DatasetInfo(storage=storage, sensors={})  # type: ignore[arg-type]
         for name in sensors or []:
             info.sensors.setdefault(name, get_sensor(name))
         write_info(loc, info)
-        writer = cls(loc, info)
-        if recover:
-            writer.recover()
-        return writer
+        return info
+
+    def close(self) -> None:
+        """Release the writer lock (the files are complete after every ``commit``)."""
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def has(self, episode_id: str) -> bool:
         return episode_id in self.index
@@ -318,8 +386,34 @@ class DatasetWriter:
                 changed_sensors = True
         if changed_sensors:
             write_info(self.loc, self.info)
+        self._merge_others()
         write_manifest(self.loc, self.manifest)
         write_index(self.loc, list(self.index.values()))
+        self._index_seen = self._index_signature()
+
+    def _index_signature(self) -> tuple[int, int, int] | None:
+        """Inode, size and mtime of the index file as this writer last saw it (local folders; None elsewhere).
+        Every index write replaces the file, so another writer's write changes the inode."""
+        if not self.loc.is_local:
+            return None
+        try:
+            stat = os.stat(self.loc.join(INDEX_PATH))
+        except FileNotFoundError:
+            return None
+        return stat.st_ino, stat.st_size, stat.st_mtime_ns
+
+    def _merge_others(self) -> None:
+        """Keep rows another writer committed since this one read the index (a writer that did not take the
+        lock, or a ``reindex``): rewriting the index from memory alone would drop them."""
+        if not self.loc.is_local or self._index_signature() == self._index_seen:
+            return
+        theirs, their_manifest = read_index(self.loc), read_manifest(self.loc)
+        for episode_id, row in theirs.items():
+            if episode_id not in self.index and episode_id not in self._dropped \
+                    and self.loc.exists(row.path):
+                self.index[episode_id] = row
+                self.manifest.files.update({k: v for k, v in their_manifest.files.items()
+                                            if v.episode_id == episode_id})
 
     def recover(self) -> ReindexReport:
         """Remove temporaries of killed writers; index complete episodes missing from the index."""
@@ -334,6 +428,7 @@ class DatasetWriter:
         stale = {eid: row.path for eid, row in self.index.items() if eid not in on_disk}
         for episode_id, rel in stale.items():
             del self.index[episode_id]
+            self._dropped.add(episode_id)
             report.skipped.append(f"{self.loc.url_of(rel)}: in the index but not on disk")
         if stale:
             self.manifest.files = {k: v for k, v in self.manifest.files.items() if v.episode_id not in stale}
@@ -351,7 +446,8 @@ class DatasetWriter:
             raise DatasetNotFoundError(f"{loc.url}: no such file or directory")
         if not loc.exists(INFO_PATH):
             raise NotADatasetError(f"{loc.url}: not a univtac-data dataset (no {INFO_PATH})")
-        return cls(loc, read_info(loc), read_existing=False).reindex()
+        with DatasetLock(loc) as lock:
+            return cls(loc, read_info(loc), read_existing=False, lock=lock).reindex()
 
     def reindex(self) -> ReindexReport:
         """Rebuild index and manifest from the episodes on disk, hashing every file."""
@@ -362,6 +458,7 @@ class DatasetWriter:
                 self.loc.remove(f"{EPISODES_DIR}/{name}")
                 report.removed_temporaries.append(f"{EPISODES_DIR}/{name}")
         found = self._scan(self._episode_files(), report)
+        self._index_seen = self._index_signature()  # the rebuilt index replaces the old one: merge nothing
         self.commit(found)
         return report
 

@@ -15,6 +15,8 @@ import fsspec
 from fsspec.implementations.local import LocalFileSystem
 
 TMP_PREFIX = ".tmp-"
+# the optional extra (pyproject.toml) that installs each object store's fsspec implementation
+PROTOCOL_EXTRAS = {"s3": "s3", "s3a": "s3", "gs": "gcs", "gcs": "gcs"}
 _HASH_BLOCK = 1 << 20
 
 
@@ -28,11 +30,31 @@ class Location:
 
     @classmethod
     def parse(cls, url_or_path: str | os.PathLike[str]) -> Location:
+        """The location of ``url_or_path``. A URL whose protocol is unknown, or needs a package that is not
+        installed (s3fs, gcsfs), is a ``DatasetError`` naming the URL and what to install."""
+        from univtac_data.storage.errors import DatasetError
+
         text = os.fspath(url_or_path)
-        fs, root = fsspec.core.url_to_fs(text)
+        protocol = text.split("://", 1)[0] if "://" in text else "file"
+        try:
+            fs, root = fsspec.core.url_to_fs(text)
+        except ImportError:
+            extra = PROTOCOL_EXTRAS.get(protocol)
+            how = f"pip install 'univtac-data[{extra}]'" if extra else "install the fsspec implementation for it"
+            raise DatasetError(f"{text}: reading {protocol}:// URLs needs a package that is not installed; "
+                               f"{how}") from None
+        except ValueError as error:
+            if "Protocol not known" not in str(error):
+                raise
+            raise DatasetError(f"{text}: unsupported URL scheme {protocol}://; use a local path or an fsspec URL "
+                               f"(file://, memory://, s3://, gs://, ...)") from None
         if isinstance(fs, LocalFileSystem):
             root = os.path.abspath(root)
         return cls(fs=fs, root=root.rstrip("/") or "/", url=text)
+
+    @property
+    def protocol(self) -> str:
+        return self.fs.protocol if isinstance(self.fs.protocol, str) else self.fs.protocol[0]
 
     @property
     def is_local(self) -> bool:

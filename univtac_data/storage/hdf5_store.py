@@ -59,6 +59,8 @@ class HDF5Handle(EpisodeHandle):
         except Exception:
             self._file.close()
             raise
+        version = self._file.attrs.get(VERSION_ATTR)
+        self.version_attr = version.decode() if isinstance(version, bytes) else version
         self._datasets: dict[str, h5py.Dataset] = {}  # path lookups cost more than a small frame read
 
     def paths(self) -> list[str]:

@@ -37,6 +37,7 @@ class ZarrHandle(EpisodeHandle):
         if META_ATTR not in attrs:
             raise CorruptFileError(f"{self.where}: no '{META_ATTR}' attribute (not a univtac-data episode)")
         self.meta = parse_episode_meta(attrs[META_ATTR], self.where)
+        self.version_attr = attrs.get(VERSION_ATTR)
         self._arrays: dict[str, Any] = {}
 
     def paths(self) -> list[str]:

@@ -286,6 +286,7 @@ def simulate_frame(
             overlapped = overlap > 0.0
             pressure = _upsample_pressure(result.pressure_mpa, step, overlapped)
             contact = overlapped & ((pressure > 0.0) | (overlap >= surface - CONTACT_TOL_MM))
+            np.copyto(depth, overlap, where=contact)  # in contact the gel meets the object
 
     shear_step = step * max(1, -(-config.shear_step // step))
     grid_sh = sensor_grid(profile, shear_step)

@@ -17,6 +17,7 @@ from univtac_data.schema.sensors import SensorProfile
 
 from .contact import GAP_FAR_MM, ContactConfig, ContactMethod, solve_contact
 from .markers import draw_markers, sample_bilinear
+from .noise import noisy_image
 from .optics import ShadingConfig, render_shaded
 from .optics_calibrated import TaximCalibration
 from .sensor_model import (
@@ -312,8 +313,8 @@ def simulate_frame(
             raise ValueError("optics='calibrated' needs TactileConfig.calibration (load_taxim_calibration(folder))")
         pure = config.calibration.render(depth, (profile.mm_per_px_x, profile.mm_per_px_y))
         if noise_seed is not None:
-            noise = np.random.default_rng(noise_seed).normal(0.0, config.shading.noise_std, pure.shape)
-            pure = np.clip(np.rint(pure + noise), 0, 255).astype(np.uint8)
+            pure = noisy_image(pure.astype(np.float32), None, None, noise_seed, config.shading.noise_std,
+                               np.empty_like(pure))
     else:
         pure = render_shaded(depth, profile, config.shading, noise_seed, deformed_box=box,
                              out=None if out is None else out.pure_rgb)

@@ -54,7 +54,7 @@ FLAT_MAGNITUDE_BINS = 1  # slopes in the first magnitude bin render as the flat 
 @dataclass(frozen=True)
 class _Prepared:
     """Per image size: ``background`` (H, W, 3) float32 and ``background_u8`` uint8, ``f0`` resized;
-    ``delta`` (3, B, B, 6) float32, each bin's polynomial minus the flat bin's; ``min_slope``: slopes below it
+    ``delta`` (B, B, 3, 6) float32, each bin's polynomials minus the flat bin's; ``min_slope``: slopes below it
     render as the flat gel."""
 
     background: np.ndarray
@@ -90,7 +90,8 @@ class TaximCalibration:
             ch, cw = self.f0.shape[:2]
             bg = zoom(self.f0, (h / ch, w / cw, 1), order=1, grid_mode=True, mode="nearest")
             flat = self.poly[:, 0, (self.bins - 1) // 2]
-            delta = (self.poly - flat[:, None, None, :]).astype(np.float32)
+            # (B, B, 3, 6): a bin's three polynomials side by side, one or two cache lines per lookup
+            delta = np.ascontiguousarray((self.poly - flat[:, None, None, :]).transpose(1, 2, 0, 3), dtype=np.float32)
             background = np.ascontiguousarray(bg, dtype=np.float32)
             u8 = np.clip(np.rint(bg), 0, 255).astype(np.uint8)
             for array in (background, u8, delta):
@@ -155,28 +156,31 @@ def _lookup(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dy: float
     # rows r0:r1, cols c0:c1: each deformed pixel whose slope (numpy.gradient's differences: central inside the
     # image, one-sided on its edges) reaches min_slope gets f0 plus its bin's change at its calibration position
     h, w = depth.shape
-    mag_width = 0.5 * np.pi / (bins - 1)
-    dir_width = 2.0 * np.pi / (bins - 1)
+    inv_mag_width = (bins - 1) / (0.5 * np.pi)
+    inv_dir_width = (bins - 1) / (2.0 * np.pi)
     for i in range(r0, r1):
         up, down = max(i - 1, 0), min(i + 1, h - 1)
         sy = inv_dy / (down - up) if down > up else 0.0
         y = i * scale_y
+        yy = y * y
+        depth_row, depth_up, depth_down = depth[i], depth[up], depth[down]
         for j in range(c0, c1):
-            d = depth[i, j]
+            d = depth_row[j]
             if d <= floor:
                 continue
             left, right = max(j - 1, 0), min(j + 1, w - 1)
-            g_row = (depth[down, j] - depth[up, j]) * sy
-            g_col = (depth[i, right] - depth[i, left]) * (inv_dx / (right - left) if right > left else 0.0)
+            g_row = (depth_down[j] - depth_up[j]) * sy
+            g_col = (depth_row[right] - depth_row[left]) * (inv_dx / (right - left) if right > left else 0.0)
             s2 = g_row * g_row + g_col * g_col
             if s2 < min_slope2 or s2 == 0.0:
                 continue
-            i_mag = min(int(np.arctan(np.sqrt(s2)) / mag_width), bins - 1)
-            i_dir = min(max(int((np.arctan2(g_row, g_col) + np.pi) / dir_width), 0), bins - 1)
+            i_mag = min(int(np.arctan(np.sqrt(s2)) * inv_mag_width), bins - 1)
+            i_dir = min(max(int((np.arctan2(g_row, g_col) + np.pi) * inv_dir_width), 0), bins - 1)
             x = j * scale_x
+            q = delta[i_mag, i_dir]
             for c in range(3):
-                q = delta[c, i_mag, i_dir]
-                v = background[i, j, c] + (q[0] * x * x + q[1] * y * y + q[2] * x * y + q[3] * x + q[4] * y + q[5])
+                v = background[i, j, c] + (q[c, 0] * (x * x) + q[c, 1] * yy + q[c, 2] * (x * y) + q[c, 3] * x
+                                           + q[c, 4] * y + q[c, 5])
                 out[i, j, c] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
 
 

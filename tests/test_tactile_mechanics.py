@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from univtac_data.generators.tactile import (
-    ContactConfig, cylinder_gap, punch_gap, sensor_grid, simulate_frame, solve_contact, sphere_gap,
+    ContactConfig, TactileConfig, cylinder_gap, punch_gap, sensor_grid, simulate_frame, solve_contact, sphere_gap,
 )
 from univtac_data.generators.tactile.sensor_model import downsample_mean
 from univtac_data.generators.tactile.shear import solve_shear
@@ -52,6 +52,44 @@ def test_hertz_sink_in_outside_the_contact() -> None:
     assert np.all(frame.depth_mm[ring] > overlap[ring])
     far = (r > 3 * a) & (r < 3 * a + 0.2)
     assert 0.0 < float(frame.depth_mm[far].mean()) < 0.5 * depth
+
+
+SENSOR_NAMES = ("gelsight_mini", "gf225", "xense_ws")
+
+
+def generator_step(profile) -> int:  # type: ignore[no-untyped-def]
+    """The elastic solver step the generator uses for ``profile`` (0.17 mm cells: 2 px, 3 px on the GF225)."""
+    from univtac_data.generators.scene.sim import SimConfig, cell_steps
+
+    return cell_steps(profile, SimConfig())[0]
+
+
+@pytest.mark.parametrize("name", SENSOR_NAMES)
+@pytest.mark.parametrize("a", [1.0, 1.5, 2.0, 3.0])
+def test_small_flat_punch_within_3_percent_on_every_sensor(name: str, a: float) -> None:
+    """F = 2 a E* d for punches of 1 to 3 mm radius (6 to 18 solver cells at step 2 on the GelSight Mini) at
+    the default step and the generator's, off the pixel grid's symmetry; before cells at the edge counted their
+    covered fraction, a = 1 mm came out 9.8 % low on the GelSight Mini."""
+    profile = get_sensor(name)
+    es = e_star(profile.material)
+    for step in sorted({2, generator_step(profile)}):
+        for depth in (0.1, 0.5):
+            frame = simulate_frame(profile, punch_gap(profile, a, depth, centre_mm=(0.031, -0.017)), method="elastic",
+                                   config=TactileConfig(contact=ContactConfig(method="elastic", solver_step=step)))
+            assert float(frame.normal_force_n) == pytest.approx(2.0 * a * es * depth, rel=0.03), (step, depth)
+
+
+@pytest.mark.parametrize("name", SENSOR_NAMES)
+@pytest.mark.parametrize("radius, depth", [(3.0, 0.3), (3.0, 0.5), (5.0, 0.4), (8.0, 0.25)])
+def test_elastic_hertz_radius_on_every_sensor(name: str, radius: float, depth: float) -> None:
+    """Contact radius from the image mask and force within 3 % of Hertz for a = 0.95 to 1.4 mm at step 2 (the
+    edge found where the upsampled p^2 crosses zero)."""
+    profile = get_sensor(name)
+    frame = simulate_frame(profile, sphere_gap(profile, radius, depth), method="elastic")
+    es = e_star(profile.material)
+    assert float(frame.normal_force_n) == pytest.approx(4.0 / 3.0 * es * np.sqrt(radius) * depth**1.5, rel=0.03)
+    measured = contact_radius(frame.contact_mask, profile.mm_per_px_x * profile.mm_per_px_y)
+    assert measured == pytest.approx(np.sqrt(radius * depth), rel=0.03)
 
 
 @pytest.mark.parametrize("depth", [0.05, 0.1, 0.2])
@@ -116,14 +154,84 @@ def test_shear_moves_markers_along_the_load() -> None:
     assert du[centre] == pytest.approx(du.max())
 
 
-def test_geometric_contact_radius_is_the_overlap() -> None:
-    radius, depth = 10.0, 0.3
+@pytest.mark.parametrize("name", SENSOR_NAMES)
+@pytest.mark.parametrize("radius, depth", [(3.0, 0.3), (3.0, 0.5), (5.0, 0.4), (8.0, 0.25), (8.0, 0.8)])
+def test_geometric_contact_is_hertz(name: str, radius: float, depth: float) -> None:
+    """The fast default: force, contact radius (image mask) and peak pressure within 3 % of Hertz (measured:
+    within 2.2 %; a = 0.95 to 2.5 mm), and the pressure has Hertz's shape inside 0.9 a."""
+    profile = get_sensor(name)
+    frame = simulate_frame(profile, sphere_gap(profile, radius, depth, centre_mm=(0.021, 0.013)), method="geometric")
+    es = e_star(profile.material)
+    force = 4.0 / 3.0 * es * np.sqrt(radius) * depth**1.5
+    a = np.sqrt(radius * depth)
+    p0 = 3.0 * force / (2.0 * np.pi * a * a)
+    assert float(frame.normal_force_n) == pytest.approx(force, rel=0.03)
+    assert contact_radius(frame.contact_mask, profile.mm_per_px_x * profile.mm_per_px_y) == pytest.approx(a, rel=0.03)
+    assert float(frame.pressure_mpa.max()) == pytest.approx(p0, rel=0.03)
+    x, y = sensor_grid(profile, 1).mesh()
+    r = np.hypot(x - 0.021, y - 0.013)
+    inside = r < 0.9 * a
+    assert np.max(np.abs(frame.pressure_mpa[inside] - p0 * np.sqrt(1.0 - (r[inside] / a) ** 2))) < 0.05 * p0
+    # the rigid overlap's rim is 41 % wider: the old geometric footprint
+    assert np.sqrt(2.0 * radius * depth) > 1.4 * a
+
+
+def test_geometric_sink_in_is_hertz_outside_the_contact() -> None:
+    """Outside the contact the gel follows Hertz's surface, (d / pi)((2 - rho^2) asin(1 / rho) + sqrt(rho^2 - 1)),
+    rho = r / a, to 2 % of d out to two radii; it never passes through the sphere, and it ends smoothly
+    (zero beyond ``rho_end`` radii)."""
+    from univtac_data.generators.tactile.contact_geometric import exterior_profiles
+
+    radius, depth = 5.0, 0.4
     frame = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="geometric")
-    measured = contact_radius(frame.contact_mask, MINI.mm_per_px_x * MINI.mm_per_px_y)
-    assert measured == pytest.approx(np.sqrt(2.0 * radius * depth - depth**2), rel=0.01)  # the cap's rim
-    assert measured == pytest.approx(np.sqrt(2.0 * radius * depth), rel=0.02)  # its limit for d << R
-    elastic = simulate_frame(MINI, sphere_gap(MINI, radius, depth), method="elastic")
-    assert contact_radius(elastic.contact_mask, MINI.mm_per_px_x * MINI.mm_per_px_y) < 0.8 * measured
+    x, y = sensor_grid(MINI, 1).mesh()
+    rho = np.hypot(x, y) / np.sqrt(radius * depth)
+    ring = (rho > 1.1) & (rho < 2.0)
+    hertz = depth / np.pi * ((2.0 - rho[ring] ** 2) * np.arcsin(1.0 / rho[ring]) + np.sqrt(rho[ring] ** 2 - 1.0))
+    assert np.max(np.abs(frame.depth_mm[ring] - hertz)) < 0.02 * depth
+    overlap = np.maximum(-sphere_gap(MINI, radius, depth), 0.0)
+    assert np.all(frame.depth_mm >= overlap)
+    annulus = (rho > 1.1) & (rho < 1.4)  # overlapped, but the gel (tangent to the sphere at the rim) has sunk in below it
+    assert np.all(frame.depth_mm[annulus] > overlap[annulus])
+    rho_end = exterior_profiles(2.0)[2]
+    assert not frame.depth_mm[rho > rho_end + 0.2].any()
+    assert (frame.depth_mm[(rho > 3.0) & (rho < rho_end - 0.5)] > 0.0).all()
+    # the slope falls off steadily (no ring where the tail starts): radial profile along +x is convex
+    row = frame.depth_mm[119, 160:]
+    xs = x[119, 160:] / np.sqrt(radius * depth)
+    outside = row[(xs > 1.2) & (xs < rho_end - 0.2)]
+    assert np.all(np.diff(outside) < 0.0) and np.all(np.diff(outside, 2) > -1e-4 * depth)
+
+
+@pytest.mark.parametrize("name", SENSOR_NAMES)
+@pytest.mark.parametrize("a", [1.0, 1.5, 2.0, 3.0])
+def test_geometric_flat_punch(name: str, a: float) -> None:
+    """A flat punch's whole face is in contact and F = 2 a E* d (within 2 %: the face's pixel area); around it
+    the gel sinks in as the punch's exterior (2 d / pi) asin(a / r)."""
+    profile = get_sensor(name)
+    depth = 0.3
+    frame = simulate_frame(profile, punch_gap(profile, a, depth), method="geometric")
+    es = e_star(profile.material)
+    area = float(np.count_nonzero(frame.contact_mask)) * profile.mm_per_px_x * profile.mm_per_px_y
+    assert area == pytest.approx(np.pi * a * a, rel=0.02)
+    assert float(frame.normal_force_n) == pytest.approx(2.0 * a * es * depth, rel=0.02)
+    x, y = sensor_grid(profile, 1).mesh()
+    r = np.hypot(x, y)
+    ring = (r > 1.2 * a) & (r < 1.9 * a)
+    assert np.max(np.abs(frame.depth_mm[ring] - 2.0 * depth / np.pi * np.arcsin(a / r[ring]))) < 0.03 * depth
+
+
+def test_geometric_pieces_are_separate_contacts() -> None:
+    """Two spheres pressed to different depths: each is its own Hertz contact (force and radius)."""
+    es = e_star(MINI.material)
+    gap = np.minimum(sphere_gap(MINI, 4.0, 0.4, (-6.0, 0.0)), sphere_gap(MINI, 4.0, 0.1, (6.0, 0.0)))
+    frame = simulate_frame(MINI, gap, method="geometric")
+    x, _ = sensor_grid(MINI, 1).mesh()
+    for side, depth in ((x < 0, 0.4), (x > 0, 0.1)):
+        area = float(np.count_nonzero(frame.contact_mask & side)) * MINI.mm_per_px_x * MINI.mm_per_px_y
+        assert np.sqrt(area / np.pi) == pytest.approx(np.sqrt(4.0 * depth), rel=0.04)
+    total = 4.0 / 3.0 * es * 2.0 * (0.4**1.5 + 0.1**1.5)
+    assert float(frame.normal_force_n) == pytest.approx(total, rel=0.03)
 
 
 @pytest.mark.parametrize("method", ["geometric", "elastic"])
@@ -230,19 +338,6 @@ def test_upsampled_pressure_is_the_full_image_computation_in_the_contact_box() -
     assert np.allclose(pressure[interior & fine_mask], expected[interior & fine_mask])
 
 
-@pytest.mark.parametrize("shape", [(150, 170), (40, 9), (7, 60), (3, 3)])
-def test_compiled_gaussian_blur_equals_scipy(shape: tuple[int, int]) -> None:
-    from scipy.ndimage import gaussian_filter
-
-    from univtac_data.generators.tactile.contact_geometric import gaussian_blur
-
-    rng = np.random.default_rng(3)
-    field = (rng.random(shape) * (rng.random(shape) > 0.5)).astype(np.float32)
-    for sigmas in ((4.3, 4.4), (2.15, 1.0), (0.4, 0.5)):
-        want = gaussian_filter(field, sigmas, mode="constant", truncate=3.0)
-        assert np.abs(gaussian_blur(field, *sigmas) - want).max() <= 3e-7
-
-
 def block_mean_reference(field: np.ndarray, step: int, pad_mode: str) -> np.ndarray:
     """Pad, reshape, mean: the array code the compiled block means replaced."""
     h, w = field.shape
@@ -261,7 +356,10 @@ def test_compiled_block_means_and_bilinear_upsampling(shape: tuple[int, int]) ->
             np.testing.assert_allclose(downsample_mean(field, step, mode), block_mean_reference(field, step, mode),
                                        rtol=1e-13, atol=1e-12)
         negative = block_mean_reference(np.minimum(field, 0.0), step, "edge")
-        expected = np.where(negative < 0.0, negative, block_mean_reference(field, step, "edge"))
+        covered = block_mean_reference((field < 0.0).astype(float), step, "edge")
+        covered_mean = negative / np.maximum(covered, 1e-300)  # mean of the covered pixels' gap
+        expected = np.where(covered >= 0.5, covered_mean,
+                            np.where(negative < 0.0, negative, block_mean_reference(field, step, "edge")))
         np.testing.assert_allclose(downsample_overlap_or_mean(field, step), expected, rtol=1e-13, atol=1e-12)
         # bilinear between solver-cell centres ((k + 0.5) step - 0.5 px), held constant beyond the outer ones
         coarse = rng.random((-(-shape[0] // step), -(-shape[1] // step)))
@@ -364,7 +462,7 @@ def whole_grid_extrapolation(pressure: np.ndarray) -> np.ndarray:
             ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
             total += np.where(ok, 2.0 * np.roll(q, shift, axis) - np.roll(q, 2 * shift, axis), 0.0)
             count += ok
-    return np.where(count > 0, total / np.maximum(count, 1.0), q)
+    return np.where(count > 0, np.minimum(total / np.maximum(count, 1.0), 0.0), q)
 
 
 @pytest.mark.parametrize("where", [(slice(30, 50), slice(40, 70)), (slice(2, 9), slice(60, 75)),

@@ -36,28 +36,32 @@ def write_calibration(folder: Path, h: int = 48, w: int = 64) -> None:
     (folder / "params.json").write_text(json.dumps({"sensor": {"pixmm": 0.05, "num_bins": BINS, "h": h, "w": w}}))
 
 
-def test_calibrated_flat_gel_is_background_plus_flat_bin(tmp_path: Path) -> None:
+def test_calibrated_flat_gel_is_f0(tmp_path: Path) -> None:
+    """An untouched pad renders as the calibration's background frame: each pixel's bin polynomial minus the
+    flat bin's (Taxim adds the flat bin's polynomial everywhere, which shifts the untouched gel)."""
     write_calibration(tmp_path / "calib")
     calib = load_taxim_calibration(tmp_path / "calib")
-    assert calib.pixmm == 0.05 and calib.bins == BINS
+    assert calib.pixmm == 0.05 and calib.bins == BINS and calib.field_mm == pytest.approx((3.2, 2.4))
     img = calib.render(np.zeros((24, 32)), (0.1, 0.1))
-    mid = (BINS - 1) // 2  # flat pixels: magnitude bin 0, direction bin of angle 0
-    cols = np.arange(32) * (64 / 32)
-    # stored BGR: f0 (40, 90, 160) is RGB (160, 90, 40); grad_b drives red, grad_r blue
-    np.testing.assert_array_equal(img[..., 0], np.full((24, 32), np.rint(160 + 3 * 0 + 0.5 * mid)))
-    np.testing.assert_array_equal(img[..., 1], np.full((24, 32), np.rint(90 + 2 * 0 + 0.5 * mid)))
-    np.testing.assert_array_equal(img[..., 2], np.broadcast_to(np.rint(40 + 0.5 * mid + 0.1 * cols), (24, 32)))
+    # stored BGR: f0 (40, 90, 160) is RGB (160, 90, 40)
+    np.testing.assert_array_equal(img, np.broadcast_to(np.array([160, 90, 40], np.uint8), (24, 32, 3)))
+    np.testing.assert_array_equal(calib.render_lookup(np.zeros((24, 32)), (0.1, 0.1)), img)
+    np.testing.assert_array_equal(calib.background((24, 32)), img)
 
 
 def test_calibrated_slopes_pick_their_bins(tmp_path: Path) -> None:
     write_calibration(tmp_path / "calib")
     calib = load_taxim_calibration(tmp_path / "calib")
     # a ramp rising along +column with slope 1 (45 deg): magnitude bin floor((pi/4) / ((pi/2) / 8)) = 4,
-    # direction atan2(0, 1) = 0 -> bin floor(pi / (2 pi / 8)) = 4
+    # direction atan2(0, 1) = 0 -> bin floor(pi / (2 pi / 8)) = 4; the flat bin is (0, 4)
     depth = np.tile(np.arange(32) * 0.1, (24, 1)) + 1.0
-    img = calib.render(depth, (0.1, 0.1))
-    assert img[10, 10, 0] == np.rint(160 + 3 * 4 + 0.5 * 4)
-    assert img[10, 10, 1] == np.rint(90 + 2 * 4 + 0.5 * 4)
+    for img in (calib.render(depth, (0.1, 0.1)), calib.render_lookup(depth, (0.1, 0.1))):
+        assert img[10, 10, 0] == np.rint(160 + 3 * 4 + 0.5 * 4 - 0.5 * 4)
+        assert img[10, 10, 1] == np.rint(90 + 2 * 4 + 0.5 * 4 - 0.5 * 4)
+        assert img[10, 10, 2] == np.rint(40 + 1 * 4 + 0.5 * 4 - 0.5 * 4)  # the x terms cancel
+    # a slope in the first magnitude bin (below 0.73 deg at 125 bins; here (pi/2)/8 = 11 deg) is flat
+    gentle = np.tile(np.arange(32) * 0.001, (24, 1)) + 1.0
+    np.testing.assert_array_equal(calib.render(gentle, (0.1, 0.1)), calib.background((24, 32)))
 
 
 def test_calibrated_mode_in_the_entry_point(tmp_path: Path) -> None:
@@ -65,8 +69,10 @@ def test_calibrated_mode_in_the_entry_point(tmp_path: Path) -> None:
     config = TactileConfig(optics="calibrated", calibration=load_taxim_calibration(tmp_path / "calib"))
     frame = simulate_frame(MINI, sphere_gap(MINI, 4.0, 0.5), config=config)
     assert frame.pure_rgb.shape == (240, 320, 3) and frame.pure_rgb.dtype == np.uint8
-    corner, centre_ring = frame.pure_rgb[5, 5], frame.pure_rgb[120, 160 + 20]
-    assert not np.array_equal(corner, centre_ring)
+    flat = frame.pure_rgb[5, 5]
+    assert np.array_equal(flat, [160, 90, 40])  # f0
+    changed = (frame.pure_rgb != flat).any(axis=-1)
+    assert changed[100:140, 140:180].any() and not changed[:40].any()  # at the contact, and only there
 
 
 def test_calibrated_frame_written_into_buffers_equals_a_new_frame(tmp_path: Path) -> None:
@@ -95,8 +101,52 @@ def test_real_taxim_calibration_when_installed() -> None:
 
     calib = load_taxim_calibration(taxim_calibration_dir("gelsight_mini"))
     assert calib.poly.shape == (3, 125, 125, 6) and calib.f0.shape == (480, 640, 3)
+    assert calib.field_mm == pytest.approx((640 * 0.0295, 480 * 0.0295))
     img = calib.render(np.zeros((240, 320)), (MINI.mm_per_px_x, MINI.mm_per_px_y))
     assert 20 < float(img.mean()) < 235
+    # the untouched pad is f0 (resized) to within one grey level
+    from scipy.ndimage import zoom
+
+    f0 = zoom(calib.f0, (0.5, 0.5, 1), order=1, grid_mode=True, mode="nearest")
+    assert np.abs(img.astype(float) - f0).max() <= 1.0
+
+
+@pytest.mark.parametrize("method", ["geometric", "elastic"])
+def test_calibrated_fast_path_equals_the_full_lookup(method: str) -> None:
+    """The compiled render looks up only deformed pixels with a slope past the first magnitude bin; the plain
+    lookup of every pixel gives the same image within one grey level (on the real Mini calibration when taxim is
+    installed, else on a synthetic one with position terms)."""
+    try:
+        from univtac_data.generators.tactile import taxim_calibration_dir
+
+        calib = load_taxim_calibration(taxim_calibration_dir("gelsight_mini"))
+    except DatasetError:
+        calib = synthetic_calibration()
+    for gap in (sphere_gap(MINI, 5.0, 0.4), np.minimum(sphere_gap(MINI, 3.0, 0.8, (-6.0, 3.0)),
+                                                        sphere_gap(MINI, 8.0, 0.2, (7.0, -4.0)))):
+        frame = simulate_frame(MINI, gap, method=method, config=TactileConfig())  # type: ignore[arg-type]
+        pitch = (MINI.mm_per_px_x, MINI.mm_per_px_y)
+        fast = calib.render(frame.depth_mm, pitch)
+        full = calib.render_lookup(frame.depth_mm, pitch)
+        assert np.abs(fast.astype(int) - full).max() <= 1
+        assert np.mean(fast != full) < 0.01
+        assert (fast != calib.background((240, 320))).any()
+
+
+def synthetic_calibration():  # type: ignore[no-untyped-def]
+    """A 125-bin calibration with smooth, position-dependent polynomials (no real data needed)."""
+    from univtac_data.generators.tactile import TaximCalibration
+
+    rng = np.random.default_rng(4)
+    bins = 125
+    i_mag, i_dir = np.meshgrid(np.arange(bins), np.arange(bins), indexing="ij")
+    poly = np.zeros((3, bins, bins, 6))
+    for c in range(3):
+        poly[c, ..., 5] = 30 * np.sin(i_dir * 2 * np.pi / bins + c) * i_mag / bins + rng.normal(0, 2, (bins, bins))
+        poly[c, ..., 3] = 0.02 * np.cos(i_dir * 2 * np.pi / bins) * i_mag / bins
+        poly[c, ..., 0] = 1e-4 * rng.normal(0, 1, (bins, bins))
+    f0 = np.tile(np.linspace(60, 180, 640)[None, :, None], (480, 1, 3))
+    return TaximCalibration(poly=poly, f0=f0, pixmm=0.0295)
 
 
 def test_shaded_flat_gel_is_the_vignetted_background() -> None:

@@ -7,9 +7,9 @@ import pytest
 
 from univtac_data.generators.tactile import GAP_FAR_MM, TactileFrame, demo_gap, simulate_frame
 from univtac_data.generators.tactile.optics import background_image
-from univtac_data.schema.sensors import SENSORS, SensorProfile
+from univtac_data.schema.sensors import SENSOR_VARIANTS, SENSORS, SensorProfile, get_sensor
 
-PROFILES = list(SENSORS.values())
+PROFILES = list(SENSORS.values()) + list(SENSOR_VARIANTS.values())
 
 
 def far_from_markers(profile: SensorProfile, markers: np.ndarray) -> np.ndarray:
@@ -98,3 +98,24 @@ def test_determinism(profile: SensorProfile, method: str) -> None:
 def test_bad_gap_shape_is_rejected(profile: SensorProfile) -> None:
     with pytest.raises(ValueError, match="gap_mm must be"):
         simulate_frame(profile, np.zeros((10, 10)))
+
+
+def test_calibrated_field_variant_images_the_calibration_field() -> None:
+    """``gelsight_mini_calibrated_field``: Taxim's real-Mini calibration field (640 x 480 at 0.0295 mm/px) at
+    320 x 240, square pixels, every marker inside the image; a named variant, not one of the format's sensors."""
+    variant = get_sensor("gelsight_mini_calibrated_field")
+    mini = get_sensor("gelsight_mini")
+    assert variant.name not in SENSORS
+    assert variant.imaged_width_mm == pytest.approx(640 * 0.0295, abs=0.005)
+    assert variant.imaged_height_mm == pytest.approx(480 * 0.0295, abs=0.005)
+    assert variant.mm_per_px_x == pytest.approx(variant.mm_per_px_y, rel=1e-3)
+    assert (variant.image_width_px, variant.image_height_px) == (mini.image_width_px, mini.image_height_px)
+    # the same physical marker dots, at the finer pitch
+    assert variant.marker_radius_px * variant.mm_per_px_x == pytest.approx(mini.marker_radius_px * mini.mm_per_px_x,
+                                                                          rel=0.01)
+    frame = simulate_frame(variant, demo_gap(variant, "sphere"))
+    ref = frame.markers_ref_px
+    assert ((ref[:, 0] > variant.marker_radius_px) & (ref[:, 0] < variant.image_width_px - variant.marker_radius_px)).all()
+    assert ((ref[:, 1] > variant.marker_radius_px) & (ref[:, 1] < variant.image_height_px - variant.marker_radius_px)).all()
+    with pytest.raises(KeyError, match="gelsight_mini_calibrated_field"):
+        get_sensor("no_such_sensor")

@@ -1,7 +1,8 @@
 """The contact step's contract: configuration, result, and the dispatch over the two methods.
 
 ``solve_contact(gap_mm, grid, material, config)`` turns a gap field on a grid into the deformed gel surface.
-One method per file: :mod:`.contact_geometric` (clipped, smoothed overlap; cheap) and
+One method per file: :mod:`.contact_geometric` (Hertz's footprint and load from the overlap, with a
+half-space-shaped sink-in around it; cheap) and
 :mod:`.contact_elastic` (linear-elastic bonded layer or half-space, Polonsky & Keer conjugate gradient).
 """
 
@@ -40,8 +41,12 @@ class ContactConfig:
     # the rigid pad's contact is calibrated, or "layer", the gel as a layer of the profile's thickness bonded
     # to a rigid backing: stiffer, and its deformation stays within a few thicknesses of the contact
     gel: GelModel = "half_space"
-    smooth_sigma_mm: float = 0.25  # geometric: Gaussian skirt around the overlap, mm
-    smooth_levels: int = 2  # geometric: blur levels (sigma, sigma/2, ...), contact region restored after each
+    # geometric: the gel touches the object where the overlap exceeds this fraction of the piece's deepest
+    # overlap (1/2: Hertz's radius sqrt(R d) for a sphere, the whole face for a flat punch)
+    contact_fraction: float = 0.5
+    # geometric: the sink-in around the contact follows the half-space's out to this many contact radii
+    # (measured from the centre), then ends smoothly about three times further
+    tail_start: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from univtac_data.schema.sensors import SensorProfile
 
 from .contact import GAP_FAR_MM, ContactConfig, ContactMethod, solve_contact
 from .markers import draw_markers, sample_bilinear
+from .noise import noisy_image
 from .optics import ShadingConfig, render_shaded
 from .optics_calibrated import TaximCalibration
 from .sensor_model import (
@@ -127,7 +128,8 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
 
 def _extrapolated_squares(q: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """``q`` = p^2 (ny, nx) with each cell outside the load (``inside`` false) that has two loaded cells in a
-    row along an axis set to the mean of their linear extrapolations (rolls: the field wraps at its edges)."""
+    row along an axis set to the mean of their linear extrapolations, at most 0 (rolls: the field wraps at its
+    edges)."""
     total = np.zeros_like(q)
     count = np.zeros_like(q)
     for axis in (0, 1):
@@ -137,7 +139,9 @@ def _extrapolated_squares(q: np.ndarray, inside: np.ndarray) -> np.ndarray:
             ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
             total += np.where(ok, 2.0 * nb1 - nb2, 0.0)
             count += ok
-    return np.where(count > 0, total / np.maximum(count, 1.0), q)
+    # an unloaded cell is open at its centre, so the edge lies before it: its extrapolation is kept <= 0 (a
+    # positive one, from a pressure still rising at the edge, would carry the contact on to the next cell)
+    return np.where(count > 0, np.minimum(total / np.maximum(count, 1.0), 0.0), q)
 
 
 def _to_micrometres(depth_mm: np.ndarray, box: tuple[slice, slice] | None = None,
@@ -274,10 +278,16 @@ def simulate_frame(
         depth = np.maximum(surface, overlap)
         if step == 1:
             contact = result.contact_mask
+            pressure = _upsample_pressure(result.pressure_mpa, step, contact)
         else:
-            # the solver's mask is per solver cell; on the image grid, contact is where the gel meets the object
-            contact = (overlap > 0.0) & (overlap >= surface - CONTACT_TOL_MM)
-        pressure = _upsample_pressure(result.pressure_mpa, step, contact)
+            # the solver's mask is per solver cell. On the image grid, contact is where the gel meets the object
+            # or the upsampled pressure is positive: p^2 is close to linear across the edge, so its zero crossing
+            # places the edge within the cell, where the bilinear surface alone lost half a pixel of the rim
+            # (an R = 3 mm sphere's radius 4 % short at step 2; within 1.5 % so)
+            overlapped = overlap > 0.0
+            pressure = _upsample_pressure(result.pressure_mpa, step, overlapped)
+            contact = overlapped & ((pressure > 0.0) | (overlap >= surface - CONTACT_TOL_MM))
+            np.copyto(depth, overlap, where=contact)  # in contact the gel meets the object
 
     shear_step = step * max(1, -(-config.shear_step // step))
     grid_sh = sensor_grid(profile, shear_step)
@@ -303,8 +313,8 @@ def simulate_frame(
             raise ValueError("optics='calibrated' needs TactileConfig.calibration (load_taxim_calibration(folder))")
         pure = config.calibration.render(depth, (profile.mm_per_px_x, profile.mm_per_px_y))
         if noise_seed is not None:
-            noise = np.random.default_rng(noise_seed).normal(0.0, config.shading.noise_std, pure.shape)
-            pure = np.clip(np.rint(pure + noise), 0, 255).astype(np.uint8)
+            pure = noisy_image(pure.astype(np.float32), None, None, noise_seed, config.shading.noise_std,
+                               np.empty_like(pure))
     else:
         pure = render_shaded(depth, profile, config.shading, noise_seed, deformed_box=box,
                              out=None if out is None else out.pure_rgb)

@@ -10,8 +10,8 @@ gel every light gives sin e, so the image is
 
 which is exactly the profile's tinted, vignetted background wherever the gel is flat, and coloured shading on
 the slopes of a contact (a slope facing a light brightens in that light's colour, the opposite slope darkens).
-``vignette = 1 - vignetting * (r / r_corner)^2``. Optional seeded Gaussian noise (grey levels) is added
-before quantisation. Only the bounding box of the deformation is shaded; the rest is the cached background.
+``vignette = 1 - vignetting * (r / r_corner)^2``. Optional seeded Gaussian noise (grey levels, :mod:`.noise`:
+counter-based, a fraction of a millisecond a frame) is added before quantisation. Only the bounding box of the deformation is shaded; the rest is the cached background.
 The shading runs compiled (numba), in float32, one pass per pixel row.
 """
 
@@ -24,6 +24,8 @@ import numba
 import numpy as np
 
 from univtac_data.schema.sensors import SensorProfile
+
+from .noise import noisy_image
 
 __all__ = ["ShadingConfig", "background_image", "render_shaded"]
 
@@ -177,10 +179,13 @@ def render_shaded(
             _shade_window(depth_mm, win, profile, config.gain, _background_single(profile),
                           np.zeros((0, 0, 3), np.float32), out)
         return out
-    img = background_image(profile).copy()
-    if win is not None:
-        img[win] += _shade(depth_mm[win], profile, config.gain)
-    img += np.random.default_rng(noise_seed).normal(0.0, config.noise_std, img.shape)
-    np.clip(np.rint(img), 0, 255, out=img)
-    out[...] = img
+    change = _shade(depth_mm[win], profile, config.gain) if win is not None else None
+    if not out.flags.c_contiguous:
+        return _copied_into(out, noisy_image(_background_single(profile), change, win, noise_seed, config.noise_std,
+                                             np.empty((h, w, 3), np.uint8)))
+    return noisy_image(_background_single(profile), change, win, noise_seed, config.noise_std, out)
+
+
+def _copied_into(out: np.ndarray, image: np.ndarray) -> np.ndarray:
+    out[...] = image
     return out

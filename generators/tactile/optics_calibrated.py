@@ -13,11 +13,24 @@ The files were written with OpenCV, so channels are in BGR order: ``f0`` is BGR 
 ``grad_r`` drives the first (blue) channel. This reader returns RGB.
 
 Rendering: the slope angle ``atan(|grad D|)`` and direction ``atan2(dD/drow, dD/dcol)`` of the depth map D
-(mm, positive into the gel) are binned with widths ``(pi/2) / (B - 1)`` and ``2 pi / (B - 1)``; the bin's
-polynomials are evaluated at the pixel's position scaled to the calibration image, and added to ``f0``
-resized to the sensor image. Flat pixels fall in bin (0, (B - 1) / 2) and are precomputed once. Taxim's own
-smoothing of the pressed height map is the contact model's job here (:mod:`.contact_geometric`,
-:mod:`.contact_elastic`), so it is not repeated. Shadows are not modelled.
+(mm, positive into the gel) are binned with widths ``(pi/2) / (B - 1)`` and ``2 pi / (B - 1)``, and the bin's
+polynomials are evaluated at the pixel's position scaled to the calibration image (the image spans the
+calibration's frame). Two departures from Taxim, both so that a contact changes only what it deforms:
+
+* **a flat gel renders as f0.** Taxim adds the flat bin's polynomial to ``f0`` everywhere, and that polynomial,
+  fitted on presses near the centre, is far from zero: on the GelSight Mini calibration it shifts the untouched
+  gel by +10.8 / +15.6 / +22.2 grey levels (R, G, B means; -31 to +47 across the image). Here each pixel gets
+  its bin's polynomial minus the flat bin's at that position, so an untouched pad is ``f0`` (resized) exactly;
+* **slopes in the first magnitude bin (below 0.73 deg) are flat.** That bin's 125 direction polynomials differ
+  from the flat one by up to 20 grey levels on the Mini calibration (fitting noise: the calibration cannot tell
+  the direction of so small a slope), so in Taxim a sink-in of a micrometre repaints whole regions.
+
+Fast path (``render``): the image starts as the precomputed ``f0`` and only pixels that are deformed (D above
+``depth_floor_mm``) with a slope in the second magnitude bin or beyond (the first whose colour can move by half
+a grey level) are looked up, in one compiled pass over the deformed box; ``render_lookup`` is the plain per-pixel
+lookup of every pixel, which it equals within one grey level (tested). Taxim's own smoothing of the pressed
+height map is the contact model's job here (:mod:`.contact_geometric`, :mod:`.contact_elastic`), so it is not
+repeated. Shadows are not modelled.
 """
 
 from __future__ import annotations
@@ -26,12 +39,28 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 from scipy.ndimage import zoom
 
 from univtac_data.storage.errors import DatasetError
 
 __all__ = ["TaximCalibration", "load_taxim_calibration", "taxim_calibration_dir"]
+
+
+FLAT_MAGNITUDE_BINS = 1  # slopes in the first magnitude bin render as the flat gel (see the module docstring)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """Per image size: ``background`` (H, W, 3) float32 and ``background_u8`` uint8, ``f0`` resized;
+    ``delta`` (B, B, 3, 6) float32, each bin's polynomials minus the flat bin's; ``min_slope``: slopes below it
+    render as the flat gel."""
+
+    background: np.ndarray
+    background_u8: np.ndarray
+    delta: np.ndarray
+    min_slope: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,40 +71,117 @@ class TaximCalibration:
     poly: np.ndarray
     f0: np.ndarray
     pixmm: float | None
-    _cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
+    _cache: dict[tuple[int, int], _Prepared] = field(default_factory=dict, repr=False)
 
     @property
     def bins(self) -> int:
         return int(self.poly.shape[1])
 
-    def _prepared(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(features (H, W, 6), background (H, W, 3), flat image (H, W, 3)) for an image size, cached."""
+    @property
+    def field_mm(self) -> tuple[float, float] | None:
+        """(width, height) of the calibration's frame in mm, or None without ``pixmm``."""
+        if self.pixmm is None:
+            return None
+        return (self.f0.shape[1] * self.pixmm, self.f0.shape[0] * self.pixmm)
+
+    def _prepared(self, shape: tuple[int, int]) -> _Prepared:
         if shape not in self._cache:
             h, w = shape
             ch, cw = self.f0.shape[:2]
-            y, x = np.meshgrid(np.arange(h) * (ch / h), np.arange(w) * (cw / w), indexing="ij")
-            feats = np.stack([x * x, y * y, x * y, x, y, np.ones_like(x)], axis=-1)
             bg = zoom(self.f0, (h / ch, w / cw, 1), order=1, grid_mode=True, mode="nearest")
-            flat = bg + feats @ self.poly[:, 0, (self.bins - 1) // 2].T
-            self._cache[shape] = (feats, bg, flat)
+            flat = self.poly[:, 0, (self.bins - 1) // 2]
+            # (B, B, 3, 6): a bin's three polynomials side by side, one or two cache lines per lookup
+            delta = np.ascontiguousarray((self.poly - flat[:, None, None, :]).transpose(1, 2, 0, 3), dtype=np.float32)
+            background = np.ascontiguousarray(bg, dtype=np.float32)
+            u8 = np.clip(np.rint(bg), 0, 255).astype(np.uint8)
+            for array in (background, u8, delta):
+                array.setflags(write=False)
+            width = 0.5 * np.pi / (self.bins - 1)
+            self._cache[shape] = _Prepared(background, u8, delta, float(np.tan(FLAT_MAGNITUDE_BINS * width)))
         return self._cache[shape]
 
-    def render(self, depth_mm: np.ndarray, mm_per_px: tuple[float, float], depth_floor_mm: float = 1e-5) -> np.ndarray:
-        """I_pure (H, W, 3) uint8 from the depth map (H, W) mm; ``mm_per_px`` = (x, y) pixel pitch, mm."""
-        feats, bg, flat = self._prepared(depth_mm.shape)
-        img = flat.copy()
+    def background(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W, 3) uint8: the flat gel, ``f0`` resized to ``shape`` (read-only)."""
+        return self._prepared(shape).background_u8
+
+    def render(self, depth_mm: np.ndarray, mm_per_px: tuple[float, float], depth_floor_mm: float = 1e-5,
+               out: np.ndarray | None = None) -> np.ndarray:
+        """I_pure (H, W, 3) uint8 from the depth map (H, W) mm; ``mm_per_px`` = (x, y) pixel pitch, mm.
+        ``out``: (H, W, 3) uint8 C-contiguous to write into. Only deformed pixels are looked up."""
+        h, w = depth_mm.shape
+        prep = self._prepared((h, w))
+        if out is None:
+            out = np.empty((h, w, 3), np.uint8)
+        elif out.shape != (h, w, 3) or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be ({h}, {w}, 3) uint8 C-contiguous (got {out.shape} {out.dtype})")
+        out[...] = prep.background_u8
+        deformed = depth_mm > depth_floor_mm
+        rows = np.flatnonzero(deformed.any(axis=1))
+        if rows.size:
+            cols = np.flatnonzero(deformed[rows[0] : rows[-1] + 1].any(axis=0))
+            ch, cw = self.f0.shape[:2]
+            _lookup(np.ascontiguousarray(depth_mm, dtype=np.float64), int(rows[0]), int(rows[-1]) + 1, int(cols[0]),
+                    int(cols[-1]) + 1, 1.0 / mm_per_px[1], 1.0 / mm_per_px[0], depth_floor_mm,
+                    prep.min_slope * prep.min_slope, self.bins, prep.delta, prep.background, ch / h, cw / w, out)
+        return out
+
+    def render_lookup(self, depth_mm: np.ndarray, mm_per_px: tuple[float, float],
+                      depth_floor_mm: float = 1e-5) -> np.ndarray:
+        """The plain per-pixel lookup (array code, float64) of every deformed pixel with a slope: the oracle
+        that :meth:`render` equals within one grey level."""
+        h, w = depth_mm.shape
+        ch, cw = self.f0.shape[:2]
+        bg = zoom(self.f0, (h / ch, w / cw, 1), order=1, grid_mode=True, mode="nearest")
+        img = bg.copy()
         g_row, g_col = np.gradient(depth_mm, mm_per_px[1], mm_per_px[0])
         slope = np.hypot(g_row, g_col)
         sel = (slope > 0.0) & (depth_mm > depth_floor_mm)
         if sel.any():
             b = self.bins
-            mag = np.arctan(slope[sel])
+            y, x = np.meshgrid(np.arange(h) * (ch / h), np.arange(w) * (cw / w), indexing="ij")
+            feats = np.stack([x * x, y * y, x * y, x, y, np.ones_like(x)], axis=-1)[sel]
+            i_mag = np.clip(np.floor(np.arctan(slope[sel]) / (0.5 * np.pi / (b - 1))).astype(np.intp), 0, b - 1)
             direction = np.arctan2(g_row[sel], g_col[sel])
-            i_mag = np.clip(np.floor(mag / (0.5 * np.pi / (b - 1))).astype(np.intp), 0, b - 1)
             i_dir = np.clip(np.floor((direction + np.pi) / (2.0 * np.pi / (b - 1))).astype(np.intp), 0, b - 1)
-            coeffs = self.poly[:, i_mag, i_dir]  # (3, n, 6)
-            img[sel] = bg[sel] + np.einsum("cnk,nk->nc", coeffs, feats[sel])
+            change = np.einsum("cnk,nk->nc", self.poly[:, i_mag, i_dir], feats) - \
+                np.einsum("ck,nk->nc", self.poly[:, 0, (b - 1) // 2], feats)
+            img[sel] = bg[sel] + np.where((i_mag < FLAT_MAGNITUDE_BINS)[:, None], 0.0, change)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lookup(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dy: float, inv_dx: float, floor: float,
+            min_slope2: float, bins: int, delta: np.ndarray, background: np.ndarray, scale_y: float, scale_x: float,
+            out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    # rows r0:r1, cols c0:c1: each deformed pixel whose slope (numpy.gradient's differences: central inside the
+    # image, one-sided on its edges) reaches min_slope gets f0 plus its bin's change at its calibration position
+    h, w = depth.shape
+    inv_mag_width = (bins - 1) / (0.5 * np.pi)
+    inv_dir_width = (bins - 1) / (2.0 * np.pi)
+    for i in range(r0, r1):
+        up, down = max(i - 1, 0), min(i + 1, h - 1)
+        sy = inv_dy / (down - up) if down > up else 0.0
+        y = i * scale_y
+        yy = y * y
+        depth_row, depth_up, depth_down = depth[i], depth[up], depth[down]
+        for j in range(c0, c1):
+            d = depth_row[j]
+            if d <= floor:
+                continue
+            left, right = max(j - 1, 0), min(j + 1, w - 1)
+            g_row = (depth_down[j] - depth_up[j]) * sy
+            g_col = (depth_row[right] - depth_row[left]) * (inv_dx / (right - left) if right > left else 0.0)
+            s2 = g_row * g_row + g_col * g_col
+            if s2 < min_slope2 or s2 == 0.0:
+                continue
+            i_mag = min(int(np.arctan(np.sqrt(s2)) * inv_mag_width), bins - 1)
+            i_dir = min(max(int((np.arctan2(g_row, g_col) + np.pi) * inv_dir_width), 0), bins - 1)
+            x = j * scale_x
+            q = delta[i_mag, i_dir]
+            for c in range(3):
+                v = background[i, j, c] + (q[c, 0] * (x * x) + q[c, 1] * yy + q[c, 2] * (x * y) + q[c, 3] * x
+                                           + q[c, 4] * y + q[c, 5])
+                out[i, j, c] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
 
 
 def load_taxim_calibration(folder: str | Path) -> TaximCalibration:

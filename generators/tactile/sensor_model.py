@@ -127,8 +127,17 @@ def downsample_mean(field: np.ndarray, step: int, pad_mode: str = "edge") -> np.
 
 
 def downsample_overlap_or_mean(gap_mm: np.ndarray, step: int) -> np.ndarray:
-    """Per ``step x step`` block (edge-padded): the mean of min(g, 0) where that is negative, else the mean of g.
-    A block straddling an overlap edge so keeps its area-weighted overlap instead of drowning in far gaps."""
+    """Per ``step x step`` block (edge-padded), the solver cell's gap (mm): in a block at least half covered by
+    the overlap (g < 0), the mean gap of its covered pixels; in a block less than half covered, the mean of
+    min(g, 0) (its overlap diluted by the block's area); else the mean of g.
+
+    Why: a cell at a contact's edge carries the load of the part the object covers. Diluting a half-covered
+    cell's overlap over the whole block (as every block did before) left it nearly unloaded, and a flat punch
+    of radius 1 mm (6 cells at step 2 on the GelSight Mini) came out 9.8 % below F = 2 a E* d; with the covered
+    pixels' mean it is within 1 % at step 2 and 3 % at step 3 for radii of 1 mm and more (tests/
+    test_tactile_mechanics.py). A block covered by less than half keeps the diluted overlap: counting it in
+    full overshoots by as much (+3 % at step 2, +8 % at step 3). Smooth indenters are unaffected (their edge
+    cells are unloaded either way: the contact is inside the overlap)."""
     if step == 1:
         return gap_mm
     out = np.empty((-(-gap_mm.shape[0] // step), -(-gap_mm.shape[1] // step)))
@@ -152,7 +161,7 @@ def _block_means(field: np.ndarray, step: int, edge: bool, overlap_first: bool, 
     scale = 1.0 / (step * step)
     for bi in range(out.shape[0]):
         for bj in range(out.shape[1]):
-            total, negative = 0.0, 0.0
+            total, negative, covered = 0.0, 0.0, 0
             for a in range(step):
                 i = _padded_index(bi * step + a, h, edge)
                 if i < 0:
@@ -165,8 +174,12 @@ def _block_means(field: np.ndarray, step: int, edge: bool, overlap_first: bool, 
                     value = field[i, j]
                     row_total += value
                     row_negative += min(value, 0.0)
+                    covered += value < 0.0
                 total += row_total
                 negative += row_negative
+            if overlap_first and 2 * covered >= step * step:
+                out[bi, bj] = negative / covered   # at least half covered: the covered pixels' mean overlap
+                continue
             negative *= scale
             out[bi, bj] = negative if overlap_first and negative < 0.0 else total * scale
 

@@ -14,7 +14,7 @@ from pydantic import BaseModel
 
 from univtac_data.schema.fields import FIELDS, FieldSpec
 from univtac_data.schema.models import DatasetInfo, EpisodeMeta, IndexRow, Manifest
-from univtac_data.schema.sensors import SENSORS
+from univtac_data.schema.sensors import FIELD_OF_VIEW_NOTES, SENSORS
 from univtac_data.storage.encoding import DENSE_CHUNK_FRAMES, SHARD_FRAMES, SMALL_CHUNK_FRAMES, encoding_for
 from univtac_data.version import FORMAT_VERSION
 
@@ -101,6 +101,7 @@ def render_sensors_md() -> str:
     ]
     lines += [f"| {label} | " + " | ".join(fn(s) for s in profiles) + " |" for label, fn in rows]
     lines += ["", "Material sources:", ""] + [f"- {s.display_name}: {s.material.source}" for s in profiles]
+    lines += ["", "Field of view:", ""] + [f"- {note}" for note in FIELD_OF_VIEW_NOTES]
     return "\n".join(lines) + "\n"
 
 

@@ -221,10 +221,40 @@ XENSE_WS = SensorProfile(
 
 SENSORS: dict[str, SensorProfile] = {s.name: s for s in (GELSIGHT_MINI, GF225, XENSE_WS)}
 
+# The GelSight Mini imaged over the field of Taxim's real-Mini calibration (640 x 480 px at 0.0295 mm/px,
+# 18.88 x 14.16 mm) instead of UniVTAC's 26.6 x 20.9 mm, at the same 320 x 240 pixels (0.059 mm/px, square):
+# calibrated images then use the calibration at its own scale, where the default profile stretches it 1.4x.
+# Markers: the same physical dots (radius 6 px at 0.083 mm/px -> 8.5 px) and pitch, the 7 x 5 that the field
+# holds. A named variant, not one of SENSORS (``generate --sensor all`` and the format's sensor list are unchanged).
+GELSIGHT_MINI_CALIBRATED_FIELD = GELSIGHT_MINI.model_copy(update={
+    "name": "gelsight_mini_calibrated_field",
+    "display_name": "GelSight Mini (calibrated field)",
+    "imaged_width_mm": 18.88,
+    "imaged_height_mm": 14.16,
+    "marker_cols": 7,
+    "marker_rows": 5,
+    "marker_radius_px": 8.5,
+})
+
+SENSOR_VARIANTS: dict[str, SensorProfile] = {GELSIGHT_MINI_CALIBRATED_FIELD.name: GELSIGHT_MINI_CALIBRATED_FIELD}
+"""Named profiles beside SENSORS, found by ``get_sensor``: other fields of view of the same hardware."""
+
+FIELD_OF_VIEW_NOTES: tuple[str, ...] = (
+    "GelSight Mini: `gelsight_mini` follows UniVTAC's configuration, for parity with its data: 26.6 x 20.9 mm "
+    "imaged, wider than the 25.25 x 20.75 mm gel pad, with non-square pixels of 0.083 x 0.087 mm. The real "
+    "sensor images less: the vendor's 0.0634 mm/px gives about 20.3 x 15.2 mm at 320 x 240, and Taxim's "
+    "real-Mini calibration covers 18.88 x 14.16 mm (640 x 480 at 0.0295 mm/px), so calibrated images of "
+    "`gelsight_mini` stretch the calibration 1.4x across the image. The named variant "
+    "`gelsight_mini_calibrated_field` (`get_sensor`, not in the sensor list above) images exactly the "
+    "calibration's field at 320 x 240 (0.059 mm/px, square pixels, the 7 x 5 markers it holds), so the "
+    "calibrated renderer uses the calibration at its own scale.",
+)
+
 
 def get_sensor(name: str) -> SensorProfile:
-    """Look a profile up by name; the error lists the known names."""
+    """Look a profile up by name (SENSORS, then SENSOR_VARIANTS); the error lists the known names."""
     try:
-        return SENSORS[name]
+        return SENSORS[name] if name in SENSORS else SENSOR_VARIANTS[name]
     except KeyError:
-        raise KeyError(f"unknown sensor {name!r}; known sensors: {', '.join(SENSORS)}") from None
+        raise KeyError(f"unknown sensor {name!r}; known sensors: {', '.join([*SENSORS, *SENSOR_VARIANTS])}") \
+            from None

@@ -1,0 +1,254 @@
+"""Calibrated optics against Taxim, side by side on the same presses (a benchmark-only extra).
+
+    pip install taxim==1.4.1 jax        # JAX on the CPU
+    OMP_NUM_THREADS=1 JAX_PLATFORMS=cpu python benchmarks/optics_vs_taxim.py [--quick]
+
+Taxim (Si & Yuan, RA-L 2022; the example-based model, calibrated on a real GelSight Mini, that UniVTAC's tactile
+images come from through TacEx) is given the rigid indenter's height map and the press depth and deforms the gel
+itself (its Gaussian pyramid); each of our contact models gets the same rigid shape as a gap field, and its depth
+map is rendered with the same calibration (``TaximCalibration.render``). Field and pitch are Taxim's own: its
+sensor stays the calibration's 480 x 640 at ``pixmm`` = 0.0295 mm per calibration pixel for any output size
+(positions and slopes are rescaled), so a 320 x 240 image is 18.88 x 14.16 mm at 0.059 mm/px, and our profile
+is the GelSight Mini with that imaged field. Taxim shifts the height map by its minimum and the press depth and
+returns RGB floats in [0, 1] (times 255 here); shadows are off on both sides (ours has none).
+
+Reported per case (sphere, cylinder, cross, flat punch, star; 0.2 to 1.0 mm) and contact model:
+* change-image PSNR (dB): each image minus its own untouched gel, so the flat-gel offset below does not count;
+  over the whole image and over the changed footprint (pixels either side changes by more than 2 grey levels);
+* SSIM of the change images (Gaussian window, sigma 1.5 px);
+* the changed footprint (pixels changed by more than 2 grey levels) as a multiple of Taxim's;
+* ms a frame: Taxim's render; ours, the whole ``simulate_frame`` (contact, shear, markers, calibrated optics)
+  and the calibrated render alone.
+And the untouched gel against the calibration's background frame f0 (at 640 x 480 and 320 x 240).
+
+Writes benchmarks/results/optics_vs_taxim.json and docs/figures/optics_vs_taxim.png.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.ndimage import gaussian_filter, zoom  # noqa: E402
+
+from univtac_data.generators.tactile import (  # noqa: E402
+    TactileConfig, load_taxim_calibration, simulate_frame, taxim_calibration_dir,
+)
+from univtac_data.schema.sensors import get_sensor  # noqa: E402
+from common import FIGURES, RESULTS, machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+
+H, W = 240, 320
+CHANGED_GREY = 2.0  # a pixel is in the changed footprint when a channel moves by more than this, grey levels
+FAR_MM = 5.0  # height of "no object" in the rigid height map, mm (anything above the deepest press works)
+
+
+def field_profile():  # type: ignore[no-untyped-def]
+    """The GelSight Mini imaged over the Taxim calibration's field (640 x 0.0295 by 480 x 0.0295 mm)."""
+    calib = load_taxim_calibration(taxim_calibration_dir("gelsight_mini"))
+    width, height = calib.field_mm  # type: ignore[misc]
+    return get_sensor("gelsight_mini").model_copy(update={"imaged_width_mm": width, "imaged_height_mm": height}), calib
+
+
+def rigid_heights(pitch_mm: float) -> dict[str, np.ndarray]:
+    """Lower-surface heights (H, W) mm of the rigid indenters above their lowest point (0), FAR_MM off them."""
+    y, x = np.meshgrid((np.arange(H) - (H - 1) / 2) * pitch_mm, (np.arange(W) - (W - 1) / 2) * pitch_mm,
+                       indexing="ij")
+
+    def rounded(dist: np.ndarray, edge: float) -> np.ndarray:  # flat top, edges rounded by ``edge`` mm
+        return np.where(dist < edge, edge - np.sqrt(np.maximum(edge * edge - dist * dist, 0.0)), FAR_MM)
+
+    r = np.hypot(x, y)
+    sphere = np.where(r < 4.0, 4.0 - np.sqrt(np.maximum(16.0 - r * r, 0.0)), FAR_MM)
+    across = -np.sin(np.pi / 6) * x + np.cos(np.pi / 6) * y
+    cylinder = np.where(np.abs(across) < 3.0, 3.0 - np.sqrt(np.maximum(9.0 - across**2, 0.0)), FAR_MM)
+    ax, ay = np.abs(x), np.abs(y)
+
+    def bar(half_l: float, half_w: float, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.hypot(np.maximum(u - half_l, 0.0), np.maximum(v - half_w, 0.0))
+
+    cross = rounded(np.minimum(bar(4.0, 0.8, ax, ay), bar(0.8, 4.0, ax, ay)), 1.0)
+    punch = np.where(r < 2.0, 0.0, FAR_MM)
+    theta = np.arctan2(y, x)
+    star_radius = 2.6 + 1.2 * np.cos(5.0 * theta)  # a five-pointed star, 1.4 to 3.8 mm
+    star = rounded(np.maximum(r - star_radius, 0.0), 0.8)
+    return {"sphere_r4": sphere, "cylinder_r3": cylinder, "cross": cross, "punch_r2": punch, "star": star}
+
+
+def psnr(a: np.ndarray, b: np.ndarray, where: np.ndarray | None = None) -> float:
+    diff = (a - b) if where is None else (a - b)[where]
+    mse = float(np.mean(diff * diff)) if diff.size else 0.0
+    return float("inf") if mse == 0.0 else 10.0 * np.log10(255.0**2 / mse)
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean SSIM over channels of two (H, W, 3) images (grey levels, data range 255), Gaussian window 1.5 px."""
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    values = []
+    for ch in range(3):
+        x, y = a[..., ch], b[..., ch]
+        mx, my = gaussian_filter(x, 1.5), gaussian_filter(y, 1.5)
+        sxx = gaussian_filter(x * x, 1.5) - mx * mx
+        syy = gaussian_filter(y * y, 1.5) - my * my
+        sxy = gaussian_filter(x * y, 1.5) - mx * my
+        values.append(np.mean((2 * mx * my + c1) * (2 * sxy + c2) / ((mx * mx + my * my + c1) * (sxx + syy + c2))))
+    return float(np.mean(values))
+
+
+def timed(fn: Callable[[], object], repeats: int) -> float:
+    fn()
+    samples = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - t)
+    return float(np.median(samples)) * 1e3
+
+
+def background_check(calib, taxim) -> dict[str, object]:  # type: ignore[no-untyped-def]
+    """Our untouched gel and Taxim's against f0, at the calibration's size and at 320 x 240."""
+    out: dict[str, object] = {}
+    for h, w in ((480, 640), (H, W)):
+        f0 = zoom(calib.f0, (h / calib.f0.shape[0], w / calib.f0.shape[1], 1), order=1, grid_mode=True,
+                  mode="nearest")
+        ours = calib.render(np.zeros((h, w)), (calib.pixmm * 640 / w, calib.pixmm * 480 / h)).astype(np.float64)
+        theirs = np.asarray(taxim.render(np.full((h, w), FAR_MM, np.float32), with_shadow=False),
+                            dtype=np.float64) * 255.0
+        out[f"{w}x{h}"] = {
+            "ours_minus_f0_max_abs_grey": float(np.abs(ours - f0).max()),
+            "taxim_minus_f0_mean_rgb_grey": [round(float(v), 2) for v in (theirs - f0).mean(axis=(0, 1))],
+            "taxim_minus_f0_min_max_grey": [round(float((theirs - f0).min()), 1), round(float((theirs - f0).max()), 1)],
+        }
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="two cases, one depth: a smoke run")
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    from taxim.calibration import CALIB_GELSIGHT_MINI
+    from taxim.taxim_jax import TaximJax
+
+    profile, calib = field_profile()
+    pitch = profile.mm_per_px_x
+    taxim = TaximJax(calib_folder=CALIB_GELSIGHT_MINI)
+    config = TactileConfig(optics="calibrated", calibration=calib)
+    shapes = rigid_heights(pitch)
+    depths = (0.2, 0.6, 1.0)
+    if args.quick:
+        shapes = {k: shapes[k] for k in ("sphere_r4", "cross")}
+        depths = (0.6,)
+    flat_ours = calib.render(np.zeros((H, W)), (pitch, pitch)).astype(np.float64)
+    flat_taxim = np.asarray(taxim.render(np.full((H, W), FAR_MM, np.float32), with_shadow=False),
+                            dtype=np.float64) * 255.0
+    rows = []
+    for name, heights in shapes.items():
+        for depth in depths:
+            hm = heights.astype(np.float32)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                theirs = np.asarray(taxim.render(hm, with_shadow=False, press_depth=depth), dtype=np.float64) * 255.0
+                taxim_ms = timed(lambda: np.asarray(taxim.render(hm, with_shadow=False, press_depth=depth)),
+                                 args.repeats)
+            change_theirs = theirs - flat_taxim
+            gap = heights - depth
+            row: dict[str, object] = {"shape": name, "depth_mm": depth, "taxim_ms": round(taxim_ms, 2)}
+            for method in ("geometric", "elastic"):
+                frame = simulate_frame(profile, gap, method=method, config=config)  # type: ignore[arg-type]
+                ours = frame.pure_rgb.astype(np.float64)
+                change_ours = ours - flat_ours
+                changed_ours = np.abs(change_ours).max(axis=-1) > CHANGED_GREY
+                changed_theirs = np.abs(change_theirs).max(axis=-1) > CHANGED_GREY
+                footprint = changed_ours | changed_theirs
+                frame_ms = timed(lambda: simulate_frame(profile, gap, method=method, config=config),  # type: ignore[arg-type]
+                                 args.repeats)
+                render_ms = timed(lambda: calib.render(frame.depth_mm, (pitch, pitch)), args.repeats)
+                row[method] = {
+                    "change_psnr_db": round(psnr(change_ours, change_theirs), 2),
+                    "footprint_psnr_db": round(psnr(change_ours, change_theirs, footprint), 2),
+                    "raw_psnr_db": round(psnr(ours, theirs), 2),
+                    "change_ssim": round(ssim(change_ours + 128.0, change_theirs + 128.0), 4),
+                    "footprint_ratio": round(float(changed_ours.sum()) / max(float(changed_theirs.sum()), 1.0), 3),
+                    "frame_ms": round(frame_ms, 3),
+                    "calibrated_render_ms": round(render_ms, 3),
+                    "speedup_vs_taxim": round(taxim_ms / frame_ms, 1),
+                    "normal_force_n": round(float(frame.normal_force_n), 3),
+                }
+            rows.append(row)
+            print(name, depth, f"taxim {taxim_ms:.1f} ms",
+                  *(f"{m}: {row[m]['change_psnr_db']} dB, footprint x{row[m]['footprint_ratio']}, "  # type: ignore[index]
+                    f"{row[m]['frame_ms']} ms" for m in ("geometric", "elastic")), flush=True)
+    summary = {}
+    for method in ("geometric", "elastic"):
+        values = [r[method] for r in rows]  # type: ignore[index]
+        summary[method] = {
+            "change_psnr_db_min": min(v["change_psnr_db"] for v in values),
+            "change_psnr_db_median": float(np.median([v["change_psnr_db"] for v in values])),
+            "footprint_ratio_range": [min(v["footprint_ratio"] for v in values), max(v["footprint_ratio"] for v in values)],
+            "footprint_ratio_median": float(np.median([v["footprint_ratio"] for v in values])),
+            "frame_ms_median": float(np.median([v["frame_ms"] for v in values])),
+            "calibrated_render_ms_median": float(np.median([v["calibrated_render_ms"] for v in values])),
+            "speedup_vs_taxim_median": float(np.median([v["speedup_vs_taxim"] for v in values])),
+            "cases_at_or_above_35_db": int(sum(v["change_psnr_db"] >= 35.0 for v in values)),
+        }
+    summary["taxim_ms_median"] = float(np.median([r["taxim_ms"] for r in rows]))  # type: ignore[misc]
+    summary["cases"] = len(rows)
+    result = {
+        "machine": {**machine(threads_used=1, packages=("numpy", "scipy", "numba", "jax", "taxim")),
+                    "note": "shared 2-core machine, other engineers' tests running: timings are noisy; "
+                            "Taxim and ours were timed side by side in the same run"},
+        "settings": {"image": [W, H], "pitch_mm": pitch, "field_mm": [W * pitch, H * pitch],
+                     "taxim": "TaximJax 1.4.1, gelsight_mini calibration, with_shadow=False, CPU",
+                     "ours": "simulate_frame(optics='calibrated'), default ContactConfig (elastic step 2)",
+                     "changed_grey_levels": CHANGED_GREY, "repeats": args.repeats},
+        "background": background_check(calib, taxim),
+        "summary": summary,
+        "cases": rows,
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = RESULTS / ("optics_vs_taxim_quick.json" if args.quick else "optics_vs_taxim.json")
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(summary, indent=2))
+    if not args.quick:
+        chart(rows, FIGURES / "optics_vs_taxim.png")
+
+
+def chart(rows: list[dict], path) -> None:  # type: ignore[no-untyped-def,type-arg]
+    labels = [f"{r['shape']}\n{r['depth_mm']} mm" for r in rows]
+    xs = np.arange(len(rows))
+    fig, axes = plt.subplots(3, 1, figsize=(12, 9), sharex=True)
+    for k, method in enumerate(("geometric", "elastic")):
+        off = (k - 0.5) * 0.38
+        axes[0].bar(xs + off, [r[method]["change_psnr_db"] for r in rows], 0.38, label=method)
+        axes[1].bar(xs + off, [r[method]["footprint_ratio"] for r in rows], 0.38, label=method)
+        axes[2].bar(xs + off, [r["taxim_ms"] / r[method]["frame_ms"] for r in rows], 0.38, label=method)
+    axes[0].axhline(35.0, color="k", lw=0.8, ls="--")
+    axes[0].set_ylabel("change-image PSNR\nvs Taxim (dB)")
+    axes[1].axhline(1.0, color="k", lw=0.8, ls="--")
+    axes[1].set_ylabel("changed footprint\n/ Taxim's")
+    axes[2].set_ylabel("speed-up over Taxim\n(whole frame)")
+    axes[2].set_yscale("log")
+    axes[2].set_xticks(xs, labels, fontsize=7)
+    axes[0].legend()
+    axes[0].set_title("GelSight Mini calibration, 320 x 240 at 0.059 mm/px: ours (calibrated optics) vs Taxim 1.4.1")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()

@@ -33,12 +33,14 @@ import numpy as np
 from univtac_data.storage import Dataset
 from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle, residual_chain_error
 from univtac_data.storage.hdf5_store import HDF5Handle
+from univtac_data.storage.zarr_store import ZarrHandle
 from univtac_data.schema.fields import field_for_path
 
 from univtac_data.loaders.chunks import FrameBase, FrameChunks, FrameLayout, FrameSource
 from univtac_data.loaders.files import DEFAULT_MAX_OPEN_FILES, CachedFile, EpisodeFiles
 from univtac_data.loaders.layouts import FileIdentity, LayoutCache
 from univtac_data.loaders.split import Split, check_split, split_of
+from univtac_data.loaders.zarr_chunks import ZarrFrameChunks, zarr_frame_chunks
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -179,7 +181,9 @@ def _handle_base(handle: EpisodeHandle, shape: tuple[int, ...], depth: int, base
     return handle.read(base)
 
 
-def _frame_chunks(handle: EpisodeHandle, path: str, residual_of: str | None) -> FrameChunks | None:
+def _frame_chunks(handle: EpisodeHandle, path: str, residual_of: str | None) -> FrameChunks | ZarrFrameChunks | None:
+    if isinstance(handle, ZarrHandle):
+        return zarr_frame_chunks(handle, path, residual_of)
     if not isinstance(handle, HDF5Handle):
         return None
     try:
@@ -324,14 +328,15 @@ class EpisodeReader:
     def read(self, ref: EpisodeRef, path: str, index: Any = ()) -> np.ndarray:
         """``path[index]`` of the episode in its logical dtype (see ``EpisodeHandle.read``). Paths for which
         ``is_whole_read`` holds are read whole once and indexed in memory (the array is read-only); one frame
-        (an int ``index``) of a local HDF5 array is read like ``frame_source``."""
+        (an int ``index``) of a local HDF5 array or of a Zarr array is read like ``frame_source``."""
         self._begin()
         if is_whole_read(path):
             file = self._cached(ref)
             array = file.layout.whole.get(path) if file is not None else None
             part: np.ndarray = (array if array is not None else self._read_whole(ref, path))[index]
             return part
-        if isinstance(index, (int, np.integer)) and self._file_path(ref) is not None:
+        if isinstance(index, (int, np.integer)) and (self._file_path(ref) is not None
+                                                     or self.datasets[ref.dataset].info.storage == "zarr"):
             frame: np.ndarray = self._frame_source(ref, path).read(int(index))
             return np.not_equal(frame, 0) if is_bool(path) else frame
         return self._entry(ref).handle.read(path, index)

@@ -94,6 +94,9 @@ class ZarrFrameChunks:
 
     def __init__(self, layout: ZarrFrameLayout, fs: Any, array_path: str, local: bool) -> None:
         self.layout, self.fs, self.array_path, self.local = layout, fs, array_path, local
+        # the version of the array's metadata the layout was read from (local files only): a reader that keeps
+        # these chunks compares it with the file once per batch (``metadata_identity``)
+        self.identity = metadata_identity(array_path) if local else None
         self._indexes: dict[int, np.ndarray | None] = {}
         self._lock = threading.Lock()
 
@@ -173,6 +176,15 @@ class ZarrFrameChunks:
         return True
 
 
+def metadata_identity(array_path: str) -> tuple[int, int, int, int] | None:
+    """Device, inode, size and modification time of a local array's ``zarr.json``, or ``None``."""
+    try:
+        stat = os.stat(os.path.join(array_path, "zarr.json"))
+    except OSError:
+        return None
+    return stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns
+
+
 def zarr_frame_chunks(handle: Any, path: str, residual_of: str | None) -> ZarrFrameChunks | None:
     """``ZarrFrameChunks`` for array ``path`` of the open ``ZarrHandle``, or ``None`` when its layout is not one
     this module decodes (or the array cannot be opened: the handle's read then reports it)."""
@@ -185,3 +197,78 @@ def zarr_frame_chunks(handle: Any, path: str, residual_of: str | None) -> ZarrFr
         return None
     loc = handle.loc
     return ZarrFrameChunks(layout, loc.fs, loc.join(handle.relpath, path), loc.is_local)
+
+
+class ZarrEpisodeCache:
+    """What reading Zarr episodes needs once they have been opened, kept across readers (an ``EpisodeReader``
+    and its ``sibling`` readers share one, as they share the HDF5 ``LayoutCache``): each
+    array's ``ZarrFrameChunks`` (its layout and the shard indexes read so far; thread-safe, so readers of all
+    threads share them) and the small arrays read whole (markers, poses, ``pure_ref_rgb``). Without it every
+    new reader (each ``FrameBatchLoader`` epoch starts one per thread) opens each episode through zarr again
+    and reads its small arrays again: about 10 ms an episode.
+
+    Keyed by the episode's URL and its index digest (``IndexRow.sha256``), so a rewritten episode is not read
+    at its former places. Least recently used episodes are dropped past ``budget_bytes`` (default 512 MiB).
+    Per process: a forked child or an unpickled copy starts empty.
+    """
+
+    def __init__(self, budget_bytes: int = 512 * 2**20) -> None:
+        self.budget_bytes = budget_bytes
+        self._reset()
+
+    def _reset(self) -> None:
+        from collections import OrderedDict
+
+        self._lock = threading.Lock()
+        self._episodes: OrderedDict[tuple[str, str], dict[str, Any]] = OrderedDict()
+        self._sizes: dict[tuple[str, str], int] = {}
+        self._nbytes = 0
+        self._pid = os.getpid()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"budget_bytes": self.budget_bytes}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.budget_bytes = state["budget_bytes"]
+        self._reset()
+
+    def get(self, key: tuple[str, str], path: str) -> Any:
+        """The ``ZarrFrameChunks`` or whole array kept for ``path`` of episode ``key``, or ``None``."""
+        if self._pid != os.getpid():
+            self._reset()
+        with self._lock:
+            arrays = self._episodes.get(key)
+            if arrays is None:
+                return None
+            self._episodes.move_to_end(key)
+            return arrays.get(path)
+
+    def put(self, key: tuple[str, str], path: str, value: Any) -> None:
+        """Keep ``value`` (a ``ZarrFrameChunks`` or a whole array, made read-only) for ``path`` of ``key``."""
+        if self._pid != os.getpid():
+            self._reset()
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+            size = value.nbytes + 200
+        else:
+            size = 200 + 16 * value.layout.n_frames   # a frame's index entry, once its shard is read
+        with self._lock:
+            arrays = self._episodes.setdefault(key, {})
+            self._episodes.move_to_end(key)
+            if path not in arrays:
+                arrays[path] = value
+                self._sizes[key] = self._sizes.get(key, 0) + size
+                self._nbytes += size
+            while self._nbytes > self.budget_bytes and self._episodes:
+                dropped, _ = self._episodes.popitem(last=False)
+                self._nbytes -= self._sizes.pop(dropped)
+
+    def drop(self, key: tuple[str, str]) -> None:
+        """Forget episode ``key`` (its metadata changed on disk)."""
+        with self._lock:
+            if self._episodes.pop(key, None) is not None:
+                self._nbytes -= self._sizes.pop(key)
+
+    def __len__(self) -> int:
+        return len(self._episodes) if self._pid == os.getpid() else 0
+

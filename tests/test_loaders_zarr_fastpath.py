@@ -131,3 +131,28 @@ def test_crc32c_matches_zarrs_checksum_and_rejects_a_flipped_byte():
         damaged = bytearray(stored)
         damaged[position] ^= 0x01
         assert not crc32c_matches(bytes(damaged))
+
+
+def test_later_epochs_open_no_zarr_episode(tmp_path, monkeypatch):
+    """Each FrameBatchLoader epoch starts new readers; what they need of a Zarr episode (chunks, shard indexes,
+    small arrays) is kept by the dataset's reader (``zarr_episodes``, shared with the threads' readers), so only the
+    first epoch opens episodes."""
+    root = make_dataset(tmp_path / "z", "zarr", 3, n_frames=4)
+    opens: list[str] = []
+    original = ZarrHandle.__init__
+
+    def counting(self: ZarrHandle, loc: object, relpath: str) -> None:
+        opens.append(relpath)
+        original(self, loc, relpath)
+
+    monkeypatch.setattr(ZarrHandle, "__init__", counting)
+    loader = FrameBatchLoader(TactileFrameDataset(root, compact=True, channels_last=True), 5, threads=2,
+                              shuffle=False)
+    first = list(loader)
+    assert opens
+    opens.clear()
+    again = list(loader)
+    assert opens == []
+    assert len(first) == len(again) == 5
+    for x, y in zip(first, again):
+        assert_same(x, y, channels_last=True)

@@ -34,12 +34,14 @@ from univtac_data.episode import Episode, resolve_shape
 from univtac_data.storage import CorruptFileError, Dataset, DatasetError
 from univtac_data.storage.backend import MAX_RESIDUAL_DEPTH, EpisodeHandle, residual_chain_error
 from univtac_data.storage.hdf5_store import HDF5Handle
+from univtac_data.storage.zarr_store import ZarrHandle
 from univtac_data.schema.fields import field_for_path
 
 from univtac_data.loaders.chunks import FrameBase, FrameChunks, FrameLayout, FrameSource
 from univtac_data.loaders.files import DEFAULT_MAX_OPEN_FILES, CachedFile, EpisodeFiles
 from univtac_data.loaders.layouts import FileIdentity, LayoutCache
 from univtac_data.loaders.split import Split, check_split, split_of
+from univtac_data.loaders.zarr_chunks import ZarrEpisodeCache, ZarrFrameChunks, metadata_identity, zarr_frame_chunks
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -205,7 +207,9 @@ def _handle_base(handle: EpisodeHandle, shape: tuple[int, ...], depth: int, base
     return handle.read(base)
 
 
-def _frame_chunks(handle: EpisodeHandle, path: str, residual_of: str | None) -> FrameChunks | None:
+def _frame_chunks(handle: EpisodeHandle, path: str, residual_of: str | None) -> FrameChunks | ZarrFrameChunks | None:
+    if isinstance(handle, ZarrHandle):
+        return zarr_frame_chunks(handle, path, residual_of)
     if not isinstance(handle, HDF5Handle):
         return None
     try:
@@ -238,16 +242,23 @@ class EpisodeReader:
     """
 
     def __init__(self, datasets: Sequence[Dataset], max_open: int = 16, *,
-                 max_open_files: int = DEFAULT_MAX_OPEN_FILES, layouts: LayoutCache | None = None) -> None:
+                 max_open_files: int = DEFAULT_MAX_OPEN_FILES, layouts: LayoutCache | None = None,
+                 zarr_episodes: ZarrEpisodeCache | None = None) -> None:
         if max_open < 1:
             raise ValueError(f"max_open must be >= 1 (got {max_open})")
         self.datasets = list(datasets)
         self.max_open = max_open
         self.layouts = layouts if layouts is not None else LayoutCache()
+        # what Zarr episodes need once opened (chunks, shard indexes, small arrays), shared with siblings
+        self.zarr_episodes = zarr_episodes if zarr_episodes is not None else ZarrEpisodeCache()
         self.files = EpisodeFiles(self.layouts, max_open_files)
         self._open: OrderedDict[tuple[int, str], _Open] = OrderedDict()
         self._retired: list[EpisodeHandle] = []   # handles of replaced files, closed once no batch holds them
         self._paths: dict[tuple[int, str], str | None] = {}
+        self._zarr_keys: dict[tuple[int, str], tuple[str, str] | None] = {}
+        # per Zarr episode: sources made from zarr_episodes (per reader), and the generation they were checked in
+        self._zarr_sources: dict[tuple[int, str], dict[str, FrameSource]] = {}
+        self._zarr_checked: dict[tuple[int, str], int] = {}
         self._pid = os.getpid()
         self._holds = 0  # nested ``holding()`` blocks: while > 0 no handle or descriptor is closed
         self._generation = 0
@@ -256,19 +267,22 @@ class EpisodeReader:
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_open"], state["_retired"], state["_holds"] = OrderedDict(), [], 0
+        state["_zarr_sources"], state["_zarr_checked"] = {}, {}
         return state
 
     def sibling(self) -> EpisodeReader:
         """A reader for another thread of this process: the same datasets, bounds and layout cache, its own
         handles and descriptors (so no thread closes what another reads through)."""
         self._check_process()
-        return EpisodeReader(self.datasets, self.max_open, max_open_files=self.files.max_open, layouts=self.layouts)
+        return EpisodeReader(self.datasets, self.max_open, max_open_files=self.files.max_open, layouts=self.layouts,
+                             zarr_episodes=self.zarr_episodes)
 
     def _check_process(self) -> None:
         if self._pid != os.getpid():
             # Handles inherited across fork share the parent's file offsets and library state: reading
             # through them corrupts reads. Dropping them only releases this process's copies.
             self._open, self._retired = OrderedDict(), []
+            self._zarr_sources, self._zarr_checked = {}, {}
             self.files.close()   # plain descriptors: closing the child's copies leaves the parent's open
             self._pid = os.getpid()
             self.opens = 0
@@ -286,6 +300,71 @@ class EpisodeReader:
             local_hdf5 = ds.info.storage == "hdf5" and ds.loc.is_local
             self._paths[key] = os.path.join(ds.loc.root, ds.index[ref.episode_id].path) if local_hdf5 else None
         return self._paths[key]
+
+    def _zarr_key(self, ref: EpisodeRef) -> tuple[str, str] | None:
+        """The episode's key in ``zarr_episodes`` (its URL and index digest) when it is a Zarr episode."""
+        key = (ref.dataset, ref.episode_id)
+        if key not in self._zarr_keys:
+            ds = self.datasets[ref.dataset]
+            row = ds.index[ref.episode_id]
+            self._zarr_keys[key] = (ds.loc.url_of(row.path), row.sha256) if ds.info.storage == "zarr" else None
+        return self._zarr_keys[key]
+
+    def _zarr_source(self, ref: EpisodeRef, key: tuple[str, str], path: str, depth: int = 0) -> FrameSource | None:
+        """``path``'s source from the chunks ``zarr_episodes`` keeps (no zarr handle opened), or ``None`` when
+        they are not kept (nor, for a residual, its base)."""
+        if not self._zarr_current(ref, key):
+            return None
+        episode = (ref.dataset, ref.episode_id)
+        source = self._zarr_sources.get(episode, {}).get(path)
+        if source is not None:
+            return source
+        chunks = self.zarr_episodes.get(key, path)
+        if not isinstance(chunks, ZarrFrameChunks):
+            return None
+        if chunks.identity is not None and metadata_identity(chunks.array_path) != chunks.identity:
+            self._zarr_forget(ref, key)
+            return None
+        base: FrameBase | None = None
+        residual_of = chunks.layout.residual_of
+        if residual_of is not None:
+            if depth >= MAX_RESIDUAL_DEPTH:
+                return None
+            base = self.zarr_episodes.get(key, residual_of) if is_whole_read(residual_of) \
+                else self._zarr_source(ref, key, residual_of, depth + 1)
+            if base is None:
+                return None
+        source = FrameSource(chunks.frame_shape, chunks.layout.dtype, chunks,   # type: ignore[arg-type]
+                             lambda frame: self._entry(ref).handle.read(path, frame), base)
+        self._zarr_sources.setdefault(episode, {})[path] = source
+        return source
+
+    def _zarr_current(self, ref: EpisodeRef, key: tuple[str, str]) -> bool:
+        """Whether the sources this reader keeps for a Zarr episode still describe it: for local arrays, each
+        one's ``zarr.json`` is the version its chunks were read from (checked once per generation, as HDF5
+        files are). When not, everything kept of the episode is dropped (``_zarr_forget``)."""
+        episode = (ref.dataset, ref.episode_id)
+        if self._zarr_checked.get(episode) == self._generation:
+            return True
+        for source in self._zarr_sources.get(episode, {}).values():
+            chunks = source.chunks
+            if isinstance(chunks, ZarrFrameChunks) and chunks.identity is not None \
+                    and metadata_identity(chunks.array_path) != chunks.identity:
+                self._zarr_forget(ref, key)
+                return False
+        self._zarr_checked[episode] = self._generation
+        return True
+
+    def _zarr_forget(self, ref: EpisodeRef, key: tuple[str, str]) -> None:
+        """Drop what is kept of a Zarr episode whose metadata changed, and retire its open handle: it is read
+        through zarr again (which reports damage)."""
+        episode = (ref.dataset, ref.episode_id)
+        self.zarr_episodes.drop(key)
+        self._zarr_sources.pop(episode, None)
+        self._zarr_checked.pop(episode, None)
+        entry = self._open.pop(episode, None)
+        if entry is not None:
+            self._retired.append(entry.handle)
 
     def _cached(self, ref: EpisodeRef) -> CachedFile | None:
         path = self._file_path(ref)
@@ -350,14 +429,18 @@ class EpisodeReader:
     def read(self, ref: EpisodeRef, path: str, index: Any = ()) -> np.ndarray:
         """``path[index]`` of the episode in its logical dtype (see ``EpisodeHandle.read``). Paths for which
         ``is_whole_read`` holds are read whole once and indexed in memory (the array is read-only); one frame
-        (an int ``index``) of a local HDF5 array is read like ``frame_source``."""
+        (an int ``index``) of a local HDF5 array or of a Zarr array is read like ``frame_source``."""
         self._begin()
         if is_whole_read(path):
             file = self._cached(ref)
             array = file.layout.whole.get(path) if file is not None else None
+            zarr_key = self._zarr_key(ref) if file is None else None
+            if zarr_key is not None:
+                array = self.zarr_episodes.get(zarr_key, path)
             part: np.ndarray = (array if array is not None else self._read_whole(ref, path))[index]
             return part
-        if isinstance(index, (int, np.integer)) and self._file_path(ref) is not None:
+        if isinstance(index, (int, np.integer)) and (self._file_path(ref) is not None
+                                                     or self.datasets[ref.dataset].info.storage == "zarr"):
             frame: np.ndarray = self._frame_source(ref, path).read(int(index))
             return np.not_equal(frame, 0) if is_bool(path) else frame
         return self._entry(ref).handle.read(path, index)
@@ -368,6 +451,9 @@ class EpisodeReader:
         if array is None:
             array = entry.whole[path] = entry.handle.read(path)
             self._record(ref, entry, whole={path: array})
+            zarr_key = self._zarr_key(ref)
+            if zarr_key is not None:
+                self.zarr_episodes.put(zarr_key, path, array)
         return array
 
     def frame_source(self, ref: EpisodeRef, path: str) -> FrameSource:
@@ -383,6 +469,11 @@ class EpisodeReader:
             source = file.sources.get(path) or self._cached_source(ref, file, path)
             if source is not None:
                 return source
+        zarr_key = self._zarr_key(ref)
+        if zarr_key is not None:
+            source = self._zarr_source(ref, zarr_key, path)
+            if source is not None:
+                return source
         return self._handle_source(ref, self._entry(ref), path)
 
     def _handle_source(self, ref: EpisodeRef, entry: _Open, path: str, depth: int = 0) -> FrameSource:
@@ -392,7 +483,12 @@ class EpisodeReader:
         if source is None:
             source = handle_source(entry.handle, path, lambda base: self._handle_base(ref, entry, base, depth), depth)
             entry.frames[path] = source
-            self._record(ref, entry, frames={path: source.chunks.layout if source.chunks is not None else None})
+            if isinstance(source.chunks, ZarrFrameChunks):
+                zarr_key = self._zarr_key(ref)
+                if zarr_key is not None:
+                    self.zarr_episodes.put(zarr_key, path, source.chunks)
+            else:
+                self._record(ref, entry, frames={path: source.chunks.layout if source.chunks is not None else None})
         return source
 
     def _handle_base(self, ref: EpisodeRef, entry: _Open, base: str, depth: int) -> FrameBase:

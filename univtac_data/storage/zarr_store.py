@@ -25,6 +25,7 @@ def _store(loc: Location, relpath: str, mode: str) -> Any:
 class ZarrHandle(EpisodeHandle):
     def __init__(self, loc: Location, relpath: str) -> None:
         super().__init__()
+        self.loc, self.relpath = loc, relpath   # where the group's objects are (the loaders read shards directly)
         self.where = loc.url_of(relpath)
         try:
             self._group = zarr.open_group(_store(loc, relpath, "r"), mode="r", zarr_format=3)
@@ -57,6 +58,10 @@ class ZarrHandle(EpisodeHandle):
                 raise KeyError(path)
             self._arrays[path] = array
         return array
+
+    def zarr_array(self, path: str) -> Any:
+        """The ``zarr.Array`` at ``path`` (``KeyError`` when absent)."""
+        return self._array(path)
 
     def _layout_raw(self, path: str) -> tuple[tuple[int, ...], np.dtype]:
         array = self._array(path)

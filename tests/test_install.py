@@ -1,5 +1,6 @@
-"""The data path installs and runs without torch: generate, validate, info, convert, reindex, preview and list,
-in a fresh interpreter where importing torch fails as it does when the package is not installed."""
+"""The data path installs and runs without torch: generate (indenters and tasks), validate, info, convert,
+reindex, preview, list and evaluate, in a fresh interpreter where importing torch fails as it does when the
+package is not installed."""
 
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ def test_the_main_job_runs_without_torch(tmp_path):
         ("preview", "out/z", "--gallery", "--out", "gallery.png"),
         ("preview", "out/indenters", "--out", "sheet.png", "--frames", "2"),
         ("list", "shapes"),
+        ("generate", "task", "lift_can", "--episodes", "1", "--camera-size", "32x24", "--workers", "1",
+         "--out", "out/lift_can"),
+        ("validate", "out/lift_can"),
+        ("evaluate", "lift_can", "--policy", "replay:out/lift_can", "--no-cameras"),
     ]
     for step in steps:
         done = cli_without_torch(tmp_path, *step)

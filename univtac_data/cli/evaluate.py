@@ -8,6 +8,7 @@ import os
 import sys
 from typing import Any
 
+from univtac_data.cli.args import camera_size, positive_int
 from univtac_data.schema.sensors import SENSORS
 from univtac_data.storage.errors import DatasetError
 
@@ -27,11 +28,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--policy", required=True,
                         help="expert | zero | random | replay:DATASET | module:factory (factory() returns an object "
                              "with reset() and act(obs) -> (8,) absolute action)")
-    parser.add_argument("--episodes", type=int, default=100, help="rollouts (default 100)")
+    parser.add_argument("--episodes", type=positive_int, default=100, help="rollouts (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="evaluation seed offset (default 0)")
     parser.add_argument("--sensor", default="gelsight_mini", choices=list(SENSORS))
     parser.add_argument("--contact", choices=("geometric", "elastic"), default="geometric")
-    parser.add_argument("--camera-size", default="480x270", metavar="WxH", help="camera size (default 480x270)")
+    parser.add_argument("--camera-size", type=camera_size, default=(480, 270), metavar="WxH", help="camera size (default 480x270)")
     parser.add_argument("--no-cameras", action="store_true", help="observe no camera images (faster)")
     parser.add_argument("--json", default=None, metavar="FILE", help="write the summary and every rollout to FILE")
     parser.add_argument("--video", default=None, metavar="DIR",
@@ -42,7 +43,6 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from univtac_data.cli.generate import _camera_size
     from univtac_data.envs.evaluate import evaluate
     from univtac_data.generators.tasks.registry import UnknownTaskError, task_class
 
@@ -50,8 +50,6 @@ def run(args: argparse.Namespace) -> int:
         task_class(args.name)
     except UnknownTaskError as error:
         raise DatasetError(str(error)) from None
-    if args.episodes < 1:
-        raise DatasetError(f"--episodes must be at least 1 (got {args.episodes})")
     if args.seed < 0:
         raise DatasetError(f"--seed must be >= 0 (got {args.seed})")
     if args.video is not None:
@@ -59,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
         require_av()
     env_kwargs = {"sensor": args.sensor, "contact": args.contact, "cameras": not args.no_cameras,
-                  "camera_size": _camera_size(args.camera_size)}
+                  "camera_size": args.camera_size}
     report = evaluate(args.name, args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
                       video_dir=args.video, videos=args.videos, progress=sys.stderr.isatty())
     s = report.summary()

@@ -9,6 +9,7 @@ from typing import Any
 from univtac_data.schema.sensors import SENSORS
 from univtac_data.storage import Dataset
 from univtac_data.storage.errors import DatasetError
+from univtac_data.cli.args import camera_size, positive_int
 
 DEFAULT_OUT = "out/indenters"
 
@@ -23,15 +24,6 @@ EXAMPLES = """examples:
 
 One writer per dataset: a second run into the same --out is refused while the first runs (exit 2)."""
 
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {text!r})") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {value})")
-    return value
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -61,7 +53,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                           "calibrated against the half-space) (default half_space)")
     ind.add_argument("--seed", type=int, default=0, help="base seed; each episode derives its own (default 0)")
     ind.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
-    ind.add_argument("--workers", type=_positive, default=None, metavar="N",
+    ind.add_argument("--workers", type=positive_int, default=None, metavar="N",
                      help="parallel workers, at least 1 (default: the CPU count)")
     ind.add_argument("--executor", choices=("local", "ray"), default="local",
                      help="a local process pool, or Ray tasks (default local)")
@@ -85,28 +77,18 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     task.add_argument("--rate", type=float, default=50.0,
                       help="policy steps and recorded frames per second; a whole number of 2 ms ticks (default 50)")
     task.add_argument("--seed", type=int, default=0, help="first seed tried; seeds go up by one (default 0)")
-    task.add_argument("--camera-size", default="480x270", metavar="WxH", help="head and wrist camera size (default 480x270)")
+    task.add_argument("--camera-size", type=camera_size, default=(480, 270), metavar="WxH", help="head and wrist camera size (default 480x270)")
     task.add_argument("--no-cameras", action="store_true", help="record no camera images (much faster)")
     task.add_argument("--keep-failures", action="store_true",
                       help="keep failed or unsafe episodes too, flagged (success false); they do not count")
     task.add_argument("--max-seeds", type=int, default=None, help="give up after this many seeds (default 20 x episodes)")
     task.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
-    task.add_argument("--workers", type=int, default=None, help="parallel workers (default: the CPU count)")
+    task.add_argument("--workers", type=positive_int, default=None, help="parallel workers (default: the CPU count)")
     task.add_argument("--executor", choices=("local", "ray"), default="local", help="a local process pool, or Ray tasks")
     task.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
     task.add_argument("--compression-level", type=int, default=1, metavar="1-9",
                       help="Blosc-Zstandard level of the episode files (default 1)")
     return parser
-
-
-def _camera_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise DatasetError(f"--camera-size must be WxH in pixels, e.g. 480x270 (got {text!r})") from None
-    if not (16 <= w <= 4096 and 16 <= h <= 4096):
-        raise DatasetError(f"--camera-size must be between 16 and 4096 px a side (got {text!r})")
-    return w, h
 
 
 def run_task(args: argparse.Namespace) -> int:
@@ -129,7 +111,7 @@ def run_task(args: argparse.Namespace) -> int:
                            f"(got {args.compression_level})")
     try:
         config = TaskConfig(sensor=args.sensor, contact_method=args.contact, rate_hz=args.rate,
-                            cameras=not args.no_cameras, camera_size=_camera_size(args.camera_size))
+                            cameras=not args.no_cameras, camera_size=args.camera_size)
         config.ticks_per_step  # noqa: B018  (refuses a rate that is not a whole number of ticks)
     except ValueError as error:
         raise DatasetError(f"--rate: {error}") from None

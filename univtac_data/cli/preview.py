@@ -18,16 +18,8 @@ import numpy as np
 from univtac_data.schema.sensors import SENSORS, get_sensor
 from univtac_data.storage import Dataset
 from univtac_data.storage.errors import DatasetError
+from univtac_data.cli.args import positive_int
 
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {text!r})") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {value})")
-    return value
 
 
 def check_output_file(path: str) -> None:
@@ -65,11 +57,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="log the episode for the Rerun viewer: images, depth, markers as points, poses as "
                              "transforms (needs the [rerun] extra; open with `rerun FILE.rrd`)")
     parser.add_argument("--episode", help="episode id (default: the first)")
-    parser.add_argument("--frames", type=_positive, default=4, help="frames shown, evenly spaced (default 4)")
+    parser.add_argument("--frames", type=positive_int, default=4, help="frames shown, evenly spaced (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
     parser.add_argument("--gallery", action="store_true",
                         help="one tile per episode (its deepest press) instead of one episode's frames")
-    parser.add_argument("--max-episodes", type=_positive, default=42, metavar="N",
+    parser.add_argument("--max-episodes", type=positive_int, default=42, metavar="N",
                         help="gallery: episodes shown, at least 1 (default 42)")
     parser.add_argument("--sensor", help=f"demo mode: sensor profile ({', '.join(SENSORS)})")
     parser.add_argument("--demo", help="demo mode: indenter (sphere, cylinder, punch, cross, two_spheres)")

@@ -12,6 +12,7 @@ from typing import Any
 
 from univtac_data.storage.errors import DatasetError
 from univtac_data.validators import GROUPS, Report, parse_groups, validate
+from univtac_data.cli.args import positive_int
 
 MAX_LISTED_FINDINGS = 40  # lines of failures in the table output; --json has them all
 
@@ -30,15 +31,6 @@ def _ids(text: str) -> list[str]:
     return ids
 
 
-def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {text!r})") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer (got {value})")
-    return value
-
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
@@ -52,7 +44,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("path", help="dataset directory or fsspec URL")
     parser.add_argument("--json", action="store_true", help="print the full report as JSON")
-    parser.add_argument("--workers", type=_workers, default=1, metavar="N",
+    parser.add_argument("--workers", type=positive_int, default=1, metavar="N",
                         help="processes checking episodes in parallel (default 1)")
     parser.add_argument("--episodes", type=_ids, default=None, metavar="ID,...",
                         help="check only these episode ids (default: every indexed episode)")

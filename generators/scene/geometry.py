@@ -63,3 +63,16 @@ def relative_pose(parent_pos: np.ndarray, parent_mat: np.ndarray, child_pos: np.
     """(7,) pose of the child frame expressed in the parent frame (both given in a common frame)."""
     rel_pos = parent_mat.T @ (np.asarray(child_pos) - np.asarray(parent_pos))
     return pose_from(rel_pos, parent_mat.T @ child_mat)
+
+
+def slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """Unit quaternion a fraction ``t`` (0..1) of the way from ``a`` to ``b`` along the shorter arc."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    dot = float(np.dot(a, b))
+    if dot < 0:
+        b, dot = -b, -dot
+    if dot > 0.9995:
+        q = a + t * (b - a)
+        return q / np.linalg.norm(q)
+    theta = math.acos(min(1.0, dot))
+    return (math.sin((1 - t) * theta) * a + math.sin(t * theta) * b) / math.sin(theta)

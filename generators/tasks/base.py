@@ -48,6 +48,9 @@ class TaskConfig:
     cameras: bool = True  # record/observe the head and wrist cameras
     camera_size: tuple[int, int] = DEFAULT_CAMERA_SIZE  # width, height px
 
+    def __post_init__(self) -> None:
+        self.ticks_per_step  # noqa: B018  (refuses a rate that is not a whole number of control ticks)
+
     @property
     def ticks_per_step(self) -> int:
         """Control ticks per policy step (a whole number, so that every step lasts the same)."""

@@ -74,7 +74,7 @@ from univtac_data.generators.scene.sim import GeomTexture
 from univtac_data.generators.scene.texture import CylinderGrooves
 from univtac_data.generators.scene.touch import TouchReading
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState, yaw_quat
-from univtac_data.generators.tasks.motions import GraspLaw, close_until, move_to, open_to
+from univtac_data.generators.tasks.motions import GraspLaw, close_until, grasp_depth_mm, move_to, open_to
 from univtac_data.schema.sensors import SensorProfile
 
 RADIUS_M = 0.02
@@ -111,7 +111,7 @@ def grasp_law(profile: SensorProfile) -> GraspLaw:
     """The kit's tactile grasp to 0.5 mm on the GelSight Mini, 0.3 mm on the sensors whose safe limit is 0.8 mm.
     Its slow phase also pushes a cylinder that one pad reached first across to the other (the camera's centre
     is off by up to 4 mm): 12 mm/s rather than UniVTAC's 6 halves that push."""
-    return GraspLaw(threshold_mm=0.5 if profile.name == "gelsight_mini" else 0.3, v_slow_m_s=0.012)
+    return GraspLaw(threshold_mm=grasp_depth_mm(profile), v_slow_m_s=0.012)
 
 
 def current_yaw(quat: np.ndarray) -> float:
@@ -288,9 +288,7 @@ class GraspClassify(Task):
         """Approach the cylinder whose centre the camera sees at ``centre_m`` (3,) m (its base at
         ``centre_m[2] - height / 2``) from above and grasp it with the tactile law; returns the touch.
 
-        The fingers close perpendicular to the line to the other cylinder, so that the neighbour is never
-        behind a pad: the fingers sweep no closer to it, and the tactile gap field, which follows each pad
-        normal through the gel, would read a geom behind the pad as a deep overlap.
+        The fingers close perpendicular to the line to the other cylinder, so that they sweep no closer to it.
         """
         layout = ctx.layout
         base_z = float(centre_m[2]) - layout["height_m"] / 2

@@ -45,7 +45,7 @@ from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mu
 from univtac_data.generators.scene.gripper import MAX_OPENING_M, GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
 from univtac_data.generators.scene.touch import TouchReading
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskState, yaw_quat
-from univtac_data.generators.tasks.motions import GraspLaw, close_until, move_to, open_to, rotate_about, wait
+from univtac_data.generators.tasks.motions import GraspLaw, close_until, grasp_depth_mm, move_to, open_to, rotate_about, wait
 
 CANS = {  # diameter m -> (length m, mass kg)
     0.04: (0.070, 0.060),
@@ -54,10 +54,6 @@ CANS = {  # diameter m -> (length m, mass kg)
 }
 LIFT_M = 0.12
 SQUARE_TOLERANCE_RAD = math.radians(3.0)
-
-
-def grasp_depth_mm(profile_name: str) -> float:
-    return 0.5 if profile_name == "gelsight_mini" else 0.3
 
 
 def squareness_from_touch(left: TouchReading, right: TouchReading, pad_width_mm: float) -> float:
@@ -140,7 +136,7 @@ class LiftCan(Task):
     def expert(self, ctx: ExpertContext) -> Iterator[Step]:
         layout = ctx.layout
         r = layout["diameter_m"] / 2
-        law = GraspLaw(threshold_mm=grasp_depth_mm(self.profile.name))
+        law = GraspLaw(threshold_mm=grasp_depth_mm(self.profile))
         yield from move_to(ctx, ctx.target[:3] - np.array([0, 0, 0.06]), width=2 * r + 0.012, speed_m_s=0.12)
         for attempt in range(3):
             yield from close_until(ctx, law)

@@ -14,21 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat, slerp
 from univtac_data.generators.scene.gripper import MAX_OPENING_M, MIN_OPENING_M
 from univtac_data.generators.tasks.base import ExpertContext, Step
-
-
-def _slerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    dot = float(np.dot(a, b))
-    if dot < 0:
-        b, dot = -b, -dot
-    if dot > 0.9995:
-        q = a + t * (b - a)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(1.0, dot))
-    return (math.sin((1 - t) * theta) * a + math.sin(t * theta) * b) / math.sin(theta)
+from univtac_data.schema.sensors import SensorProfile
 
 
 def steps_for(ctx: ExpertContext, distance: float, speed: float) -> int:
@@ -54,7 +43,7 @@ def move_to(ctx: ExpertContext, pos: np.ndarray | None = None, quat: np.ndarray 
     for k in range(1, n + 1):
         t = k / n
         action = start + (goal - start) * t
-        action[3:7] = _slerp(start[3:7], goal[3:7], t)
+        action[3:7] = slerp(start[3:7], goal[3:7], t)
         yield ctx.step(primitive, action)
 
 
@@ -104,12 +93,18 @@ class GraspLaw:
     timeout_s: float = 2.0
 
 
+def grasp_depth_mm(profile: SensorProfile) -> float:
+    """The indentation the task experts grasp to, mm: 0.5 on a gel whose safe limit is 1.5 mm (GelSight Mini,
+    UniVTAC's target), 0.3 on the thinner gels safe to 0.8 mm (GF225, Xense WS)."""
+    return 0.5 if profile.safe_indentation_mm >= 1.5 else 0.3
+
+
 def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> Iterator[Step]:
     """Close on an object until both pads reach ``law.threshold_mm``; sets ``ctx.memory['grasped']``."""
     ctx.memory["grasped"] = False
     for _ in range(max(1, round(law.timeout_s / ctx.dt_s))):
-        depth = ctx.indentation_mm()
         gaps = ctx.gap_mm()
+        depth = {pad: max(0.0, -gap) for pad, gap in gaps.items()}
         if min(depth.values()) >= law.threshold_mm:
             ctx.memory["grasped"] = True
             return
@@ -125,4 +120,4 @@ def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> 
         yield ctx.step(primitive, action)
 
 
-__all__ = ["GraspLaw", "close_until", "move_to", "open_to", "rotate_about", "steps_for", "wait"]
+__all__ = ["GraspLaw", "close_until", "grasp_depth_mm", "move_to", "open_to", "rotate_about", "steps_for", "wait"]

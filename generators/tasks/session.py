@@ -16,12 +16,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from univtac_data.generators.scene.geometry import quat_to_mat
+from univtac_data.generators.scene.geometry import quat_to_mat, slerp
 from univtac_data.generators.scene.gripper import FINGER_TRAVEL_M, MAX_OPENING_M, MIN_OPENING_M, PADS, opening_to_finger_pos
 from univtac_data.generators.scene.sim import GripperSim, SimConfig
 from univtac_data.generators.scene.threads import one_blas_thread
 from univtac_data.generators.tasks.base import SafetyCheck, Task, TaskConfig, TaskState
-from univtac_data.generators.tasks.motions import _slerp
 from univtac_data.schema.sensors import get_sensor
 
 SETTLE_S = 0.2  # set-up: the scene settles this long before the policy's first step (not recorded)
@@ -152,7 +151,7 @@ class TaskSession:
         for k in range(1, ticks + 1):
             t = k / ticks
             sim.ee_setpoint[:3] = start[:3] + (target[:3] - start[:3]) * t
-            sim.ee_setpoint[3:] = _slerp(start[3:7], target[3:7], t)
+            sim.ee_setpoint[3:] = slerp(start[3:7], target[3:7], t)
             sim.finger_setpoints_m[:] = min(FINGER_TRAVEL_M, opening_to_finger_pos(start[7] + (target[7] - start[7]) * t))
             sim.tick()
         self.last_action = target
@@ -174,16 +173,13 @@ class TaskSession:
     def state(self, memory: dict[str, Any] | None = None) -> TaskState:
         sim = self.sim
         assert sim is not None
-        gaps = sim.gap_mm()
+        per_object = sim.object_gaps_mm()
+        gaps = {pad: min(pads[pad] for pads in per_object.values()) for pad in PADS}
         ee = sim.ee_pose()
         objects = {name: sim.object_pose(name) for name in self.task.objects()}
-        # the held object: the one both pads overlap (with one object, the pads' own gaps say so)
-        if len(objects) == 1:
-            held = next(iter(objects)) if all(-g >= GRIP_CONTACT_MM for g in gaps.values()) else None
-        else:
-            per_object = sim.object_gaps_mm()
-            held = next((name for name, pads in per_object.items()
-                         if all(-g >= GRIP_CONTACT_MM for g in pads.values())), None)
+        # the held object: the one both pads overlap
+        held = next((name for name, pads in per_object.items() if all(-g >= GRIP_CONTACT_MM for g in pads.values())),
+                    None)
         if held is not None:
             in_hand = quat_to_mat(ee[3:]).T @ (objects[held][:3] - ee[:3])
             if self._grip_anchor is None or self._grip_anchor[0] != held:

@@ -112,7 +112,6 @@ def run_task(args: argparse.Namespace) -> int:
     try:
         config = TaskConfig(sensor=args.sensor, contact_method=args.contact, rate_hz=args.rate,
                             cameras=not args.no_cameras, camera_size=args.camera_size)
-        config.ticks_per_step  # noqa: B018  (refuses a rate that is not a whole number of ticks)
     except ValueError as error:
         raise DatasetError(f"--rate: {error}") from None
     out = args.out or "out/tasks"

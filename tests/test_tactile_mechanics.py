@@ -439,11 +439,14 @@ def test_compiled_dense_stick_slip_equals_the_array_code(slide_mm: tuple[float, 
     rx, ry = x[cols] - float((p * x[cols]).sum() / total_p), x[rows] - float((p * x[rows]).sum() / total_p)
     op = _DenseCells(rows, cols, field.shape, dx, dx, material)
     s = np.asarray(slide_mm, dtype=np.float64)
-    q, lam_s, lam_t = _stick_slip(op, p, rx, ry, s, twist_rad, material.friction, dx * dx, total_p, 8)
-    q_c, lam_s_c, lam_t_c = _stick_slip_dense(op.matrix, p, rx, ry, s[0], s[1], twist_rad, material.friction,
-                                              dx * dx, total_p, 8, CG_TOLERANCE, SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE)
+    q, lam_s, lam_t, q_s, q_t = _stick_slip(op, p, rx, ry, s, twist_rad, material.friction, dx * dx, total_p, 8)
+    none = np.zeros(0)
+    q_c, lam_s_c, lam_t_c, q_s_c, q_t_c = _stick_slip_dense(
+        op.matrix, p, rx, ry, s[0], s[1], twist_rad, material.friction, dx * dx, total_p, 8, CG_TOLERANCE,
+        SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none, none)
     assert (lam_s_c, lam_t_c) == pytest.approx((lam_s, lam_t), rel=1e-12)
-    np.testing.assert_allclose(q_c, q, rtol=0.0, atol=1e-9 * max(np.abs(q).max(), 1e-300))
+    for compiled, array_code in ((q_c, q), (q_s_c, q_s), (q_t_c, q_t)):
+        np.testing.assert_allclose(compiled, array_code, rtol=0.0, atol=1e-9 * max(np.abs(array_code).max(), 1e-300))
     if slide_mm == (5.0, -3.0):
         assert lam_s < 0.5   # a gross slide was scaled back to the friction limit
     if twist_rad == 0.8:
@@ -483,3 +486,55 @@ def test_pressure_extrapolation_on_the_load_box_equals_the_whole_grid_one(where:
     fine = upsample_linear(whole_grid_extrapolation(coarse), step, shape)
     expected[fine_mask] = np.sqrt(np.maximum(fine[fine_mask], 0.0))
     np.testing.assert_array_equal(_upsample_pressure(coarse, step, fine_mask), expected)
+
+
+@pytest.mark.parametrize("dense_max_cells", [0, 10_000])
+def test_warm_started_shear_equals_a_cold_solve(dense_max_cells: int) -> None:
+    """A held contact that slides and twists a little more each frame: each frame solved from the previous
+    frame's solutions (the state) gives the tractions of a solve from nothing, within the solver's tolerance,
+    on both operators."""
+    from univtac_data.generators.tactile.shear import ContactState, solve_shear
+
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    dx, n = 0.25, 40
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    state: ContactState | None = None
+    for frame in range(6):
+        a = 2.5 + 0.1 * frame
+        r2 = (x[None, :] ** 2 + (x[:, None] * 1.3) ** 2) / a**2
+        pressure = np.where(r2 < 1.0, 0.1 * np.sqrt(np.maximum(1.0 - r2, 0.0)), 0.0)
+        slide = (0.02 * frame, 0.01 * frame * (-1) ** frame)
+        twist = 0.002 * frame
+        warm = solve_shear(pressure, pressure > 0.0, dx, dx, x, x, material, slide, twist, state,
+                           dense_max_cells=dense_max_cells)
+        cold_state = None if state is None else ContactState(
+            in_contact=state.in_contact, reference_mm=state.reference_mm,
+            reference_twist_rad=state.reference_twist_rad, slip_mm=state.slip_mm)
+        cold = solve_shear(pressure, pressure > 0.0, dx, dx, x, x, material, slide, twist, cold_state,
+                           dense_max_cells=dense_max_cells)
+        assert frame == 0 or warm.state.slide_solution is not None
+        scale = max(float(np.abs(cold.traction_mpa).max()), 1e-12)
+        np.testing.assert_allclose(warm.traction_mpa, cold.traction_mpa, rtol=0.0, atol=2e-3 * scale)
+        np.testing.assert_allclose(warm.shear_force_n, cold.shear_force_n, rtol=2e-3, atol=1e-9)
+        assert warm.slip_mm == pytest.approx(cold.slip_mm, abs=1e-6)
+        state = warm.state
+
+
+@pytest.mark.parametrize("dense_max_cells", [0, 10_000])
+def test_warm_start_on_a_load_that_vanishes_gives_zero(dense_max_cells: int) -> None:
+    """A contact that shrinks to one cell while twisting: the twist's load on the cell is zero, and a guess
+    carried from the larger contact must not turn that into a division by zero (it did in single precision)."""
+    from univtac_data.generators.tactile.shear import solve_shear
+
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    dx, n = 0.25, 20
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    wide = np.where(np.hypot(x[None, :], x[:, None]) < 1.0, 0.05, 0.0)
+    first = solve_shear(wide, wide > 0.0, dx, dx, x, x, material, (0.0, 0.0), 0.01, None,
+                        dense_max_cells=dense_max_cells)
+    assert first.state.twist_solution is not None
+    one = np.zeros_like(wide)
+    one[n // 2, n // 2] = 0.05
+    second = solve_shear(one, one > 0.0, dx, dx, x, x, material, (0.0, 0.0), 0.02, first.state,
+                         dense_max_cells=dense_max_cells)
+    assert np.isfinite(second.traction_mpa).all() and not second.traction_mpa.any()

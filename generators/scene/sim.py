@@ -68,6 +68,10 @@ class SimConfig:
     # GelSight Mini, 3 px on a GF225; benchmarks/results/tactile_speed_vs_accuracy.json).
     solver_cell_mm: float = 0.17
     max_frames: int | None = None  # stop (FrameBudgetReached) once this many frames are recorded
+    # Frames to allocate the recording buffers for when ``max_frames`` is not set (a task's step limit): the
+    # buffers are reserved, not touched, so an episode that ends early costs nothing, where growing them by
+    # doubling copied every frame recorded so far (a tenth of a frame without cameras).
+    frame_capacity: int = 64
     # Elastic solver stop: relative change of the pressure. 1e-4 gives the same forces to four digits and
     # depth within the 1 um storage quantum as 1e-6, in two thirds of the time (docs/tactile.md).
     contact_tol: float = 1e-4
@@ -190,7 +194,7 @@ class GripperSim:
         """Record from now on (frame 0 = the next tick, or the next ``record_frame()``), forgetting any
         earlier frames."""
         self.frames.clear()
-        capacity = self.config.max_frames or 64
+        capacity = self.config.max_frames or self.config.frame_capacity
         self.pixels = {f"tactile/{pad}/{name}": FrameStack(capacity) for pad in PADS for name in PIXEL_FIELDS}
         for cam in self.camera_specs:
             self.pixels[f"scene/cameras/{cam.name}/rgb"] = FrameStack(capacity)

@@ -56,6 +56,10 @@ class ContactState:
     ``slip_mm``: sliding accumulated since contact onset, mm. ``pressure_mpa``: the previous frame's normal
     pressure on the solver grid (ny, nx) MPa, or None: the elastic solve starts from it (consecutive frames
     differ little, so the conjugate gradient needs a few iterations instead of tens).
+    ``slide_solution``: the previous frame's fully stuck tractions per mm of slide, (2, ny, nx) MPa/mm, for
+    a slide along ``slide_direction`` (unit (x, y)); ``twist_solution``: likewise per rad of twist,
+    (2, ny, nx) MPa/rad. Or None. The tangential solves start from them: a held contact changes little
+    between frames, and a cold start costs about three times the iterations.
     """
 
     in_contact: bool = False
@@ -63,6 +67,9 @@ class ContactState:
     reference_twist_rad: float = 0.0
     slip_mm: float = 0.0
     pressure_mpa: np.ndarray | None = field(default=None, compare=False, repr=False)
+    slide_solution: np.ndarray | None = field(default=None, compare=False, repr=False)
+    slide_direction: tuple[float, float] = (1.0, 0.0)
+    twist_solution: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -208,7 +215,7 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
     means."""
     keep = active.astype(np.float64)
     b = rhs * keep
-    if start is None:
+    if start is None or not b.any():   # a zero load has the zero solution, whatever the guess
         q = np.zeros_like(b)
         r = b
     else:
@@ -221,7 +228,10 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
         if rr <= stop:
             break
         ad = op(d) * keep
-        alpha = rr / float(np.vdot(d, ad))
+        curvature = float(np.vdot(d, ad))
+        if curvature <= 0.0:   # the direction underflowed in single precision: nothing left to gain
+            break
+        alpha = rr / curvature
         q += alpha * d
         r -= alpha * ad
         rr_new = float(np.vdot(r, r))
@@ -235,7 +245,7 @@ def _cg_dense(matrix: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.n
               max_iter: int) -> np.ndarray:  # pragma: no cover (compiled)
     # _cg's iteration on flattened (2 m,) vectors with op(q) = matrix @ float32(q); an empty ``start``: none
     b = rhs * keep
-    if start.size == 0:
+    if start.size == 0 or not b.any():
         q = np.zeros(b.size)
         r = b.copy()
     else:
@@ -248,7 +258,10 @@ def _cg_dense(matrix: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.n
         if rr <= stop:
             break
         ad = np.dot(matrix, d.astype(np.float32)).astype(np.float64) * keep
-        alpha = rr / np.dot(d, ad)
+        curvature = np.dot(d, ad)
+        if curvature <= 0.0:
+            break
+        alpha = rr / curvature
         q += alpha * d
         r -= alpha * ad
         rr_new = np.dot(r, r)
@@ -258,29 +271,32 @@ def _cg_dense(matrix: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.n
 
 
 def _stick_slip(op: CellOperator, p: np.ndarray, rx: np.ndarray, ry: np.ndarray, s: np.ndarray, theta: float,
-                mu: float, area: float, total_p: float, slip_rounds: int) -> tuple[np.ndarray, float, float]:
+                mu: float, area: float, total_p: float, slip_rounds: int, guess_s: np.ndarray | None = None,
+                guess_t: np.ndarray | None = None) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:
     """Steps 2 to 4 of the module docstring on the m contact cells: tractions q (2, m) MPa for the elastic slide
     ``s`` (2,) mm and twist ``theta`` rad, with normal pressure ``p`` (m,) MPa at offsets ``rx``, ``ry`` (m,)
-    mm from its centroid; and the fractions ``lam_s``, ``lam_t`` of slide and twist the friction limit lets
-    the gel hold (1: stuck)."""
+    mm from its centroid; the fractions ``lam_s``, ``lam_t`` of slide and twist the friction limit lets
+    the gel hold (1: stuck); and the fully stuck tractions of the slide and of the twist (2, m) (zero when
+    there is none). ``guess_s``, ``guess_t``: starting points for those two solves, or None."""
     ones = np.ones(p.shape)
     every = np.ones(p.shape, dtype=bool)
     q = np.zeros((2, *p.shape))
+    q_s, q_t = np.zeros_like(q), np.zeros_like(q)
     lam_s = lam_t = 1.0
     if np.any(s != 0.0):
-        q_s = _cg(op, every, np.stack([s[0] * ones, s[1] * ones]))
+        q_s = _cg(op, every, np.stack([s[0] * ones, s[1] * ones]), start=guess_s)
         force = np.hypot(*(q_s.sum(axis=1) * area))
         limit = mu * total_p * area
         lam_s = limit / force if force > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
         q += lam_s * q_s
     if theta != 0.0:
-        q_t = _cg(op, every, np.stack([-theta * ry, theta * rx]))
+        q_t = _cg(op, every, np.stack([-theta * ry, theta * rx]), start=guess_t)
         torque = abs(float((rx * q_t[1] - ry * q_t[0]).sum() * area))
         limit = mu * float((p * np.hypot(rx, ry)).sum() * area)
         lam_t = limit / torque if torque > limit * (1.0 + SLIDE_TOLERANCE) else 1.0
         q += lam_t * q_t
     if not np.any(q != 0.0):
-        return q, lam_s, lam_t
+        return q, lam_s, lam_t, q_s, q_t
     target = np.stack([lam_s * s[0] - lam_t * theta * ry, lam_s * s[1] + lam_t * theta * rx])
     limit_cell = mu * p
     sliding = np.zeros(p.shape, dtype=bool)
@@ -304,23 +320,26 @@ def _stick_slip(op: CellOperator, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
         # the previous round's stuck tractions are a close guess: only the cells that just began to slide moved
         q = q_slip + (_cg(op, stick, target - op(q_slip), tol=tol, start=q - q_slip) if stick.any() else 0.0)
         solved_loose = tol == SLIP_ROUND_TOLERANCE
-    return q, lam_s, lam_t
+    return q, lam_s, lam_t, q_s, q_t
 
 
 @numba.njit(cache=True, nogil=True)
 def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray, s_x: float, s_y: float,
                       theta: float, mu: float, area: float, total_p: float, slip_rounds: int, cg_tol: float,
-                      round_tol: float, slide_tol: float) -> tuple[np.ndarray, float, float]:  # pragma: no cover
+                      round_tol: float, slide_tol: float, guess_s: np.ndarray, guess_t: np.ndarray
+                      ) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
     # _stick_slip with the dense operator, compiled: on the few hundred cells of a contact its dozens of array
-    # calls a round cost more than the arithmetic. Vectors are flattened (2 m,): x components, then y.
+    # calls a round cost more than the arithmetic. Vectors are flattened (2 m,): x components, then y; an empty
+    # guess: none.
     m = p.size
     every = np.ones(2 * m)
     q = np.zeros(2 * m)
+    q_s, q_t = np.zeros(2 * m), np.zeros(2 * m)
     lam_s = lam_t = 1.0
     if s_x != 0.0 or s_y != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = s_x, s_y
-        q_s = _cg_dense(matrix, every, rhs, np.zeros(0), cg_tol, 200)
+        q_s = _cg_dense(matrix, every, rhs, guess_s, cg_tol, 200)
         force = np.hypot(q_s[:m].sum() * area, q_s[m:].sum() * area)
         limit = mu * total_p * area
         if force > limit * (1.0 + slide_tol):
@@ -329,14 +348,14 @@ def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.
     if theta != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = -theta * ry, theta * rx
-        q_t = _cg_dense(matrix, every, rhs, np.zeros(0), cg_tol, 200)
+        q_t = _cg_dense(matrix, every, rhs, guess_t, cg_tol, 200)
         torque = abs((rx * q_t[m:] - ry * q_t[:m]).sum() * area)
         limit = mu * (p * np.hypot(rx, ry)).sum() * area
         if torque > limit * (1.0 + slide_tol):
             lam_t = limit / torque
         q += lam_t * q_t
     if not np.any(q != 0.0):
-        return q.reshape(2, m), lam_s, lam_t
+        return q.reshape(2, m), lam_s, lam_t, q_s.reshape(2, m), q_t.reshape(2, m)
     target = np.empty(2 * m)
     target[:m], target[m:] = lam_s * s_x - lam_t * theta * ry, lam_s * s_y + lam_t * theta * rx
     limit_cell = mu * p
@@ -368,7 +387,45 @@ def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.
             pushed = np.dot(matrix, q_slip.astype(np.float32)).astype(np.float64)
             q = q_slip + _cg_dense(matrix, keep, target - pushed, q - q_slip, tol, 200)
         solved_loose = tol == round_tol
-    return q.reshape(2, m), lam_s, lam_t
+    return q.reshape(2, m), lam_s, lam_t, q_s.reshape(2, m), q_t.reshape(2, m)
+
+
+def _warm_start(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
+                s: np.ndarray, theta: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Starting points (2, m) for the stuck slide and twist solves from the previous frame's solutions per unit
+    load: the twist's scaled by ``theta``; the slide's scaled by |s| and turned from the direction it was solved
+    for to that of ``s`` (exact for an isotropic operator on a round contact, a close guess otherwise)."""
+    if state is None or not state.in_contact:
+        return None, None
+    guess_s = guess_t = None
+    if state.slide_solution is not None and state.slide_solution.shape[1:] == shape:
+        size = float(np.hypot(*s))
+        if size > 0.0:
+            (ex, ey), (nx_, ny_) = state.slide_direction, s / size
+            cos, sin = ex * nx_ + ey * ny_, ex * ny_ - ey * nx_
+            ux, uy = state.slide_solution[:, rows, cols]
+            guess_s = size * np.stack([cos * ux - sin * uy, sin * ux + cos * uy])
+    if state.twist_solution is not None and state.twist_solution.shape[1:] == shape and theta != 0.0:
+        guess_t = theta * state.twist_solution[:, rows, cols]
+    return guess_s, guess_t
+
+
+def _unit_solutions(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
+                    s: np.ndarray, theta: float, q_s: np.ndarray, q_t: np.ndarray
+                    ) -> tuple[np.ndarray | None, tuple[float, float], np.ndarray | None]:
+    """This frame's stuck solutions per unit slide and twist on the grid, for the next frame's
+    :func:`_warm_start`; a load that is zero this frame keeps the previous frame's."""
+    carried = state if state is not None and state.in_contact else ContactState()
+    slide, direction, twist = carried.slide_solution, carried.slide_direction, carried.twist_solution
+    size = float(np.hypot(*s))
+    if size > 0.0:
+        slide = np.zeros((2, *shape))
+        slide[:, rows, cols] = q_s / size
+        direction = (float(s[0] / size), float(s[1] / size))
+    if theta != 0.0:
+        twist = np.zeros((2, *shape))
+        twist[:, rows, cols] = q_t / theta
+    return slide, direction, twist
 
 
 def solve_shear(
@@ -415,12 +472,17 @@ def solve_shear(
     cx, cy = float((p * gx).sum() / total_p), float((p * gy).sum() / total_p)
     rx, ry = gx - cx, gy - cy
     op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
+    guess_s, guess_t = _warm_start(state, shape, rows, cols, s, theta)
     if isinstance(op, _DenseCells):
-        q, lam_s, lam_t = _stick_slip_dense(op.matrix, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area,
-                                            total_p, slip_rounds, CG_TOLERANCE, SLIP_ROUND_TOLERANCE,
-                                            SLIDE_TOLERANCE)
+        none = np.zeros(0)
+        q, lam_s, lam_t, q_s, q_t = _stick_slip_dense(
+            op.matrix, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,
+            SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s.reshape(-1),
+            none if guess_t is None else guess_t.reshape(-1))
     else:
-        q, lam_s, lam_t = _stick_slip(op, p, rx, ry, s, theta, mu, area, total_p, slip_rounds)
+        q, lam_s, lam_t, q_s, q_t = _stick_slip(op, p, rx, ry, s, theta, mu, area, total_p, slip_rounds,
+                                                guess_s, guess_t)
+    slide_solution, slide_direction, twist_solution = _unit_solutions(state, shape, rows, cols, s, theta, q_s, q_t)
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta
     r_mean = float((p * np.hypot(rx, ry)).sum() / total_p)
@@ -439,7 +501,8 @@ def solve_shear(
     displacement = padded_inverse(in_plane, ks.pad_shape, shape)
     new_state = ContactState(
         in_contact=True, reference_mm=(float(reference[0]), float(reference[1])),
-        reference_twist_rad=float(twist_ref), slip_mm=float(slip),
+        reference_twist_rad=float(twist_ref), slip_mm=float(slip), slide_solution=slide_solution,
+        slide_direction=slide_direction, twist_solution=twist_solution,
     )
     return ShearResult(traction, displacement, q.sum(axis=1) * area, float(slip), new_state)
 

@@ -96,10 +96,11 @@ def _window(mask: np.ndarray, grow: int) -> tuple[slice, slice]:
     return out[0], out[1]
 
 
-# Contacts of at most this many cells get the dense operator below; larger ones the FFT operator. A dense
-# matrix-vector product on 2 x 400 unknowns costs about as much as one FFT convolution of the window, and
-# building the matrix grows with the square of the cells.
-DENSE_MAX_CELLS = 400
+# Contacts of at most this many cells get the dense operator below; larger ones the FFT operator. Both run in
+# compiled code; on the task recordings (Lift Can, Grasp Classify) 300 was fastest of 100-400: below it a
+# matrix-vector product beats an FFT pair, above it building the matrix (a contact changes shape most frames)
+# costs more than the solve saves.
+DENSE_MAX_CELLS = 300
 
 
 class _DenseCells:
@@ -241,23 +242,49 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
 
 
 @numba.njit(cache=True, nogil=True)
-def _cg_dense(matrix: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.ndarray, tol: float,
+def _apply_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], window: tuple[int, int],
+                 rows: np.ndarray, cols: np.ndarray, q: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
+    # the cell operator on a flattened (2 m,) traction: the dense matrix when it has entries, else the FFT
+    # convolution over the window (``_WindowCells``, single precision: the solves stop at a relative residual
+    # of 1e-4, far above float32's 1e-7). numpy.fft inside compiled code comes from rocket-fft.
+    if matrix.size > 0:
+        return np.dot(matrix, q.astype(np.float32)).astype(np.float64)
+    m = rows.size
+    field = np.zeros((2, window[0], window[1]), np.float32)
+    for i in range(m):
+        field[0, rows[i], cols[i]] = q[i]
+        field[1, rows[i], cols[i]] = q[m + i]
+    spectrum = np.fft.rfft2(field, s=(pad[0], pad[1]))
+    fx, fy = spectrum[0].copy(), spectrum[1].copy()
+    spectrum[0] = spectra[0] * fx + spectra[1] * fy
+    spectrum[1] = spectra[1] * fx + spectra[2] * fy
+    grid = np.fft.irfft2(spectrum, s=(pad[0], pad[1]))
+    out = np.empty(2 * m)
+    for i in range(m):
+        out[i] = grid[0, rows[i], cols[i]]
+        out[m + i] = grid[1, rows[i], cols[i]]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _cg_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], window: tuple[int, int],
+              rows: np.ndarray, cols: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.ndarray, tol: float,
               max_iter: int) -> np.ndarray:  # pragma: no cover (compiled)
-    # _cg's iteration on flattened (2 m,) vectors with op(q) = matrix @ float32(q); an empty ``start``: none
+    # _cg's iteration on flattened (2 m,) vectors with the operator of _apply_cells; an empty ``start``: none
     b = rhs * keep
     if start.size == 0 or not b.any():
         q = np.zeros(b.size)
         r = b.copy()
     else:
         q = start * keep
-        r = b - np.dot(matrix, q.astype(np.float32)).astype(np.float64) * keep
+        r = b - _apply_cells(matrix, spectra, pad, window, rows, cols, q) * keep
     d = r.copy()
     rr = np.dot(r, r)
     stop = tol * tol * max(np.dot(b, b), 1e-300)
     for _ in range(max_iter):
         if rr <= stop:
             break
-        ad = np.dot(matrix, d.astype(np.float32)).astype(np.float64) * keep
+        ad = _apply_cells(matrix, spectra, pad, window, rows, cols, d) * keep
         curvature = np.dot(d, ad)
         if curvature <= 0.0:
             break
@@ -324,13 +351,16 @@ def _stick_slip(op: CellOperator, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True)
-def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray, s_x: float, s_y: float,
-                      theta: float, mu: float, area: float, total_p: float, slip_rounds: int, cg_tol: float,
-                      round_tol: float, slide_tol: float, guess_s: np.ndarray, guess_t: np.ndarray
-                      ) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
-    # _stick_slip with the dense operator, compiled: on the few hundred cells of a contact its dozens of array
-    # calls a round cost more than the arithmetic. Vectors are flattened (2 m,): x components, then y; an empty
-    # guess: none.
+def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], window: tuple[int, int],
+                      win_rows: np.ndarray, win_cols: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
+                      s_x: float, s_y: float, theta: float, mu: float, area: float, total_p: float,
+                      slip_rounds: int, cg_tol: float, round_tol: float, slide_tol: float, guess_s: np.ndarray,
+                      guess_t: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
+    # _stick_slip compiled, on the operator of _apply_cells (the dense matrix, or with an empty matrix the FFT
+    # over the window): its dozens of array calls a round, and each FFT's call overhead, cost more than the
+    # arithmetic on a contact's few hundred or thousand cells. Vectors are flattened (2 m,): x components,
+    # then y; an empty guess: none.
+    op = (matrix, spectra, pad, window, win_rows, win_cols)
     m = p.size
     every = np.ones(2 * m)
     q = np.zeros(2 * m)
@@ -339,7 +369,7 @@ def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.
     if s_x != 0.0 or s_y != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = s_x, s_y
-        q_s = _cg_dense(matrix, every, rhs, guess_s, cg_tol, 200)
+        q_s = _cg_cells(*op, every, rhs, guess_s, cg_tol, 200)
         force = np.hypot(q_s[:m].sum() * area, q_s[m:].sum() * area)
         limit = mu * total_p * area
         if force > limit * (1.0 + slide_tol):
@@ -348,7 +378,7 @@ def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.
     if theta != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = -theta * ry, theta * rx
-        q_t = _cg_dense(matrix, every, rhs, guess_t, cg_tol, 200)
+        q_t = _cg_cells(*op, every, rhs, guess_t, cg_tol, 200)
         torque = abs((rx * q_t[m:] - ry * q_t[:m]).sum() * area)
         limit = mu * (p * np.hypot(rx, ry)).sum() * area
         if torque > limit * (1.0 + slide_tol):
@@ -384,10 +414,16 @@ def _stick_slip_dense(matrix: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.
         else:
             for i in range(m):
                 keep[i] = keep[m + i] = 0.0 if sliding[i] else 1.0
-            pushed = np.dot(matrix, q_slip.astype(np.float32)).astype(np.float64)
-            q = q_slip + _cg_dense(matrix, keep, target - pushed, q - q_slip, tol, 200)
+            pushed = _apply_cells(*op, q_slip)
+            q = q_slip + _cg_cells(*op, keep, target - pushed, q - q_slip, tol, 200)
         solved_loose = tol == round_tol
     return q.reshape(2, m), lam_s, lam_t, q_s.reshape(2, m), q_t.reshape(2, m)
+
+
+# the operator arguments of _stick_slip_cells that the other operator leaves empty
+_NO_MATRIX = np.zeros((0, 0), np.float32)
+_NO_SPECTRA = np.zeros((3, 1, 1), np.complex64)
+_NO_CELLS = np.zeros(0, np.int64)
 
 
 def _warm_start(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
@@ -474,14 +510,14 @@ def solve_shear(
     op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
     guess_s, guess_t = _warm_start(state, shape, rows, cols, s, theta)
     if isinstance(op, _DenseCells):
-        none = np.zeros(0)
-        q, lam_s, lam_t, q_s, q_t = _stick_slip_dense(
-            op.matrix, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,
-            SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s.reshape(-1),
-            none if guess_t is None else guess_t.reshape(-1))
+        operator = (op.matrix, _NO_SPECTRA, (1, 1), (1, 1), _NO_CELLS, _NO_CELLS)
     else:
-        q, lam_s, lam_t, q_s, q_t = _stick_slip(op, p, rx, ry, s, theta, mu, area, total_p, slip_rounds,
-                                                guess_s, guess_t)
+        operator = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols)
+    none = np.zeros(0)
+    q, lam_s, lam_t, q_s, q_t = _stick_slip_cells(
+        *operator, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,
+        SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s.reshape(-1),
+        none if guess_t is None else guess_t.reshape(-1))
     slide_solution, slide_direction, twist_solution = _unit_solutions(state, shape, rows, cols, s, theta, q_s, q_t)
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta

@@ -295,7 +295,9 @@ def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, r0: int, c0: int,
                 shape = blend[p] * (sphere[m] * (1.0 - f) + sphere[m + 1] * f) + \
                     (1.0 - blend[p]) * (punch[m] * (1.0 - f) + punch[m + 1] * f)
                 sink[i, j] = rim[p] * shape
-    # bilinear between block centres ((k - 1) / 2 px into the block), held constant beyond the outer ones
+    # bilinear between block centres ((k - 1) / 2 px into the block), held constant beyond the outer ones: each
+    # row first blends its two block rows, then each pixel its two blocks (a quarter of the arithmetic of
+    # blending four blocks a pixel)
     inv_k = 1.0 / k
     col_lo, col_t = np.empty(w, np.int64), np.empty(w)
     for j in range(w):
@@ -303,18 +305,21 @@ def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, r0: int, c0: int,
         lo = min(int(x), max(cw - 2, 0))
         col_lo[j], col_t[j] = lo, x - lo
     hi_c = min(1, cw - 1)
+    blended = np.empty(cw)
     for i in range(h):
         y = min(max((i - centre) * inv_k, 0.0), ch - 1.0)
         lo = min(int(y), max(ch - 2, 0))
         ty = y - lo
         up, down = sink[lo], sink[min(lo + 1, ch - 1)]
+        for c in range(cw):
+            blended[c] = up[c] + (down[c] - up[c]) * ty
         gi = w0 + i
         depth_row, mask_row, gap_row = depth[gi], mask[gi], gap[gi]
         for j in range(w):
             gj = v0 + j
             if mask_row[gj]:
                 continue
-            a, t = col_lo[j], col_t[j]
-            b = a + hi_c
-            u = (up[a] * (1.0 - t) + up[b] * t) * (1.0 - ty) + (down[a] * (1.0 - t) + down[b] * t) * ty
+            a = col_lo[j]
+            left = blended[a]
+            u = left + (blended[a + hi_c] - left) * col_t[j]
             depth_row[gj] = max(u, -gap_row[gj], 0.0)

@@ -32,13 +32,15 @@ class Outcome:
     corrections: list[dict[str, Any]]
 
 
-def run_expert(task: GraspClassify, seed: int) -> Outcome:
+def run_expert(task: GraspClassify, seed: int, corrections: bool = True) -> Outcome:
     """The expert from ``seed`` until its script ends or the step limit. The expert's context has the layout
-    without ``rough_spot`` (the ground truth of which cylinder is knurled): it must decide from touch."""
+    without ``rough_spot`` (the ground truth of which cylinder is knurled): it must decide from touch.
+    ``corrections=False``: the expert never re-places (to measure what re-placing is worth)."""
     session = TaskSession(task)
     try:
         state = session.reset(seed)
         ctx = ExpertContext(session, session.rng)
+        ctx.corrections_enabled = corrections
         ctx.layout = {key: value for key, value in session.layout.items() if key != "rough_spot"}
         for step in task.expert(ctx):
             if session.steps >= task.max_steps:
@@ -80,9 +82,9 @@ def test_re_place_fires_on_misses_and_without_it_the_expert_fails_more_often(out
         for c in o.corrections:
             assert c["what"] == "re-place after a miss" and c["signal"].startswith("head camera")
             assert c["miss_mm"] > 12.0
-    task = GraspClassify(FAST, PROFILE, corrections=False)
+    task = GraspClassify(FAST, PROFILE)
     seeds = range(40)
-    without = [run_expert(task, seed) for seed in seeds]
+    without = [run_expert(task, seed, corrections=False) for seed in seeds]
     assert not any(o.corrections for o in without)
     rate_with = sum(outcomes[s].success for s in seeds) / len(seeds)
     rate_without = sum(o.success for o in without) / len(seeds)

@@ -35,8 +35,8 @@ Expert (closed loop; the decisions are recorded in ``memory``, corrections in ``
     away 6 cm. **Re-place after a miss**: the head camera then sees the cylinder standing ``miss`` from its
     pad's centre (the offset of a placed object from the pad it stands on is seen well, unlike the pad's
     position from afar); if ``miss > 1.2 cm``, re-grasp it, lift 2 cm, move it by the seen offset, place and
-    release again (at most twice; recorded with ``miss_mm`` and the offset). ``corrections=False`` on the
-    task (or ``ctx.corrections_enabled = False``) skips the re-place.
+    release again (at most twice; recorded with ``miss_mm`` and the offset). ``ctx.corrections_enabled =
+    False`` (``run_expert(..., corrections=False)``) skips the re-place.
 Success
     both cylinders stand on their class's pad: centre within 2 cm (xy) of the pad's centre, base within 1 cm
     of the pad's top, axis tilted less than 15 deg from vertical.
@@ -73,7 +73,7 @@ from univtac_data.generators.scene.gripper import (
 from univtac_data.generators.scene.sim import GeomTexture
 from univtac_data.generators.scene.texture import CylinderGrooves
 from univtac_data.generators.scene.touch import TouchReading
-from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState, yaw_quat
+from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskState, yaw_quat
 from univtac_data.generators.tasks.motions import GraspLaw, close_until, grasp_depth_mm, move_to, open_to
 from univtac_data.schema.sensors import SensorProfile
 
@@ -146,10 +146,6 @@ class GraspClassify(Task):
     gym_id = "univtac/GraspClassify-v0"
     max_steps = 1250
     primitive_names = ["move", "grasp", "lift", "carry", "place", "release", "regrasp"]
-
-    def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True) -> None:
-        super().__init__(config, profile)
-        self.corrections = corrections  # False: the expert never re-places (to measure what re-placing is worth)
 
     # --- scene -------------------------------------------------------------------------------------
     def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
@@ -266,7 +262,7 @@ class GraspClassify(Task):
                                speed_m_s=0.20, primitive="carry")
             yield from self._place(ctx)
             for _ in range(MAX_REPLACES):
-                if not (self.corrections and getattr(ctx, "corrections_enabled", True)):
+                if not ctx.corrections_enabled:
                     break
                 placed = self._seen_near(ctx, ctx.target[:2] + hand_to_axis[:2])
                 offset = np.asarray(GOAL_PADS_XY_M[cls]) - placed[:2]

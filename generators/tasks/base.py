@@ -25,6 +25,7 @@ import numpy as np
 
 from univtac_data.generators.scene.cameras import DEFAULT_CAMERA_SIZE, CameraSpec
 from univtac_data.generators.scene.geometry import quat_to_mat
+from univtac_data.generators.scene.pad_forces import PadForce, pad_forces
 from univtac_data.generators.scene.sim import GeomTexture
 from univtac_data.generators.scene.touch import TouchReading
 from univtac_data.schema.sensors import SensorProfile
@@ -183,6 +184,11 @@ class ExpertContext:
 
     def touch(self) -> dict[str, TouchReading]:
         return self._session.sim.touch()
+
+    def pad_forces(self) -> dict[str, PadForce]:
+        """Per pad, the summed contact force on the gel now (``scene.pad_forces``: normal and shear, N)."""
+        sim = self._session.sim
+        return pad_forces(sim.model, sim.data)
 
     def indentation_mm(self) -> dict[str, float]:
         """Per pad, the deepest overlap with the object now, mm (>= 0; from MuJoCo's narrow phase)."""

@@ -5,8 +5,8 @@ Description
     (the plug's axis tilted sideways in the plane of its wide faces), a centimetre above a fixed socket. The
     expert reads the plug's tilt from the orientation of the contact patches on the pads, turns the gripper
     to stand the plug upright, places the tip above the socket the camera sees, and pushes down. When the tip
-    catches (the pads feel the load rise while the plug stops going down) it lifts, reads where it caught,
-    nudges and tries again.
+    catches (the load on the pads rises before the plug is in) it lifts, steps the way the pads felt the
+    socket push the tip, and tries again.
 Objects (procedural; HDMI type A sizes)
     ``plug`` (free body, 15 g; origin at the centre of the shell's tip, local +z along the plug axis away from
     the tip, local x along the 14 mm width): metal shell 14.0 x 4.5 x 10 mm (MJCF ``plug_shell``), overmold
@@ -54,7 +54,7 @@ Version history
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from typing import Any
 
 import numpy as np
@@ -250,7 +250,7 @@ class InsertHDMI(Task):
         ctx.memory["nudges"] = nudges
         yield from wait(ctx, 0.2)
 
-    def _straighten(self, ctx: ExpertContext, what: str, primitive: str = "align") -> Iterator[Step]:
+    def _straighten(self, ctx: ExpertContext, what: str, primitive: str = "align") -> Generator[Step, None, float]:
         """Turn the gripper about the pad normal so that the plug stands upright; returns the grip's offset
         along gripper y (m)."""
         touch = ctx.touch()
@@ -283,7 +283,7 @@ class InsertHDMI(Task):
         touch = ctx.touch()
         return tilt_from_touch(touch["left"], touch["right"])
 
-    def _push(self, ctx: ExpertContext) -> Iterator[Step]:
+    def _push(self, ctx: ExpertContext) -> Generator[Step, None, bool]:
         """Push down until full depth (returns False) or until the plug jams (returns True)."""
         bottom = SOCKET_TOP_M - FULL_DEPTH_M - 0.0005 + GRIP_CENTRE_M
         step = PUSH_SPEED_M_S * ctx.dt_s

@@ -10,42 +10,47 @@ Description
     little while it feels it, turns back 12 deg from where the stop was felt, and pulls the key 3 cm
     straight up.
 Objects (procedural; sizes of a pin-tumbler house key and lock)
-    ``key`` (the tactile object; MJCF geom ``key`` is the bow the pads hold): bow 22 x 2.5 x 20 mm (width,
-    thickness, height) whose centre is 16 mm above the lock face; shank a 2 mm diameter rod through the
+    ``key`` (the tactile object; MJCF geom ``key`` is the bow the pads hold): a plastic-headed bow
+    24 x 8 x 20 mm (width, thickness, height; the gripper closes no narrower than 4 mm) whose centre is 16 mm
+    above the lock face; shank a 2 mm diameter rod through the
     face; blade 14 x 2.6 x 20 mm below the face; 8 g in all. The key's body origin is on its axis at the
     lock face. It rides on two joints of the lock: ``key_turn`` (hinge about the vertical axis, angle 0 =
-    the release angle, range -120 to +12 deg: the end stop; joint friction 0.01 N m, damping 1e-4 N m s)
-    and ``key_pull`` (slide along the axis, 0-50 mm).
+    the release angle, range -120 to +12 deg: the end stop, solref 4 ms; joint friction 0.01 N m, damping
+    1e-4 N m s, armature 2e-4 kg m^2: the lock core's inertia, without which MuJoCo's stop is too soft to
+    feel) and ``key_pull`` (slide along the axis, 0-50 mm, armature 0.05 kg). The pad-bow contact pair has
+    half the kit's default stiffness (the lock, not a free object, takes the squeeze).
     ``lock``: fixed, a cylinder housing 30 mm across whose face is 35 mm above the table; the face is a
     3 mm plate with the keyway, a slot 17 x 3.5 mm along the lock's x. The blade (14 x 2.6 mm) can pass
     the slot only within +-3.7 deg of the release angle (its corners touch the slot's sides beyond); at
     any other angle the blade's top catches under the face plate and the key cannot be pulled. The blade
-    and the face plate collide (MuJoCo boxes, default contact); nothing else of the key touches the lock.
+    and the face plate collide (explicit box pairs, solref 2 ms, solimp 0.99: a pull of 16 N, what the
+    pads' friction carries, keeps the blade less than 0.2 mm into the plate); nothing else of the key touches the
+    lock. ``benchmarks/key_detent_stability.py`` charts these choices.
 Randomisation (seeded)
     lock centre x, y U(-5, 5) mm, lock yaw U(-45, 45) deg; the key's angle from the release angle
     U(-90, -45) deg. The camera's estimate of the lock's yaw (so of the release angle) is off by
     +-U(5, 10) deg; its estimate of the key's own angle (the bow is large) by U(-3, 3) deg.
 Expert (closed loop; the signal and size of each correction are in ``memory['corrections']``)
     grasp the bow to 0.5 mm (0.3 mm on GF225 / Xense WS) and note each pad's depth; **turn until the stop
-    is felt**: turn about the vertical through the gripper at 0.6 rad/s towards the seen release angle and
-    on, at most 25 deg past it; the signal is the rise of the deepest indentation on either pad above its
+    is felt**: turn about the vertical through the gripper at 1.2 rad/s to 15 deg before the seen release
+    angle, then at 0.6 rad/s on, at most 25 deg past it; the signal is the rise of the deepest indentation on either pad above its
     depth after the grasp: a key turned against the stop twists in the grasp about its axis and digs the
     bow's edges into the gels; a rise over 0.12 mm for two steps is the stop. The key's turning friction
     alone raises it by under 0.05 mm. **Overshoot and correct**: the gripper, still turning while the rise
-    builds, ends a few degrees past where the stop was first felt; it turns back to 12 deg before the
+    builds, ends 1.4 deg past where the stop was first felt; it turns back to 12 deg before the
     angle of first contact with the stop (the gripper's own yaw at the step the rise began), the release
     angle. Recorded: the felt stop angle, the overshoot past it and the turn back (deg). Then **pull** 3 cm
-    straight up at 1.5 cm/s and hold 0.2 s. With corrections switched off the expert turns to the release
+    straight up at 3 cm/s and hold 0.2 s. With corrections switched off the expert turns to the release
     angle the camera sees and pulls.
 Success
-    the key raised at least 26 mm (the blade's top clears the face plate after 23.5 mm) with its axis
+    the key raised at least 26 mm (the blade's bottom clears the face plate after 23.5 mm) with its axis
     within 15 deg of vertical (the key rides on the lock's joints while in it, so this holds by
     construction until it is out).
 Safety (per step; a violation makes the rollout invalid)
     deepest pad indentation <= the sensor's safe limit (1.5 mm Mini, 0.8 mm GF225 / Xense WS); the key
     moves at most 5 mm in the gripper frame once both pads grip it.
 Step limit
-    300 policy steps (6 s at 50 Hz), UniVTAC's; the expert takes about 160-230.
+    300 policy steps (6 s at 50 Hz), UniVTAC's; the expert takes at most 248 on seeds 0-99.
 Version history
     v0: first version.
 """
@@ -81,8 +86,8 @@ TURN_DAMPING_NMS = 1e-4
 # the stop would give way like a spring of 0.02 N m/rad. The lock core's armature makes it a stop.
 TURN_ARMATURE_KGM2 = 2e-4
 # the same for the face plate holding the blade against the pull (16 N at most, what the pads' friction carries):
-# with it the blade stops within 0.02 mm, so the contact stays on the plate's underside and never finds a
-# sideways way out through the keyway's edges
+# with it and the stiff blade pairs the contact stays on the plate's underside; with the default softness the
+# blade sank in until the contact found a sideways way out through the keyway's edge
 PULL_ARMATURE_KG = 0.05
 STOP_SOLREF = (0.004, 1.0)  # the stop's time constant (s) and damping ratio (benchmarks/key_detent_stability.py)
 PULL_M = 0.03

@@ -44,11 +44,12 @@ class TaskEnv(gym.Env[dict[str, Any], np.ndarray]):
 
     def __init__(self, task: str, *, sensor: str = "gelsight_mini", contact: str = "geometric",
                  cameras: bool = True, camera_size: tuple[int, int] = (480, 270), action_mode: str = "absolute",
-                 tactile_extras: bool = False, render_mode: str | None = "rgb_array") -> None:
+                 tactile_extras: bool = False, render_mode: str | None = "rgb_array",
+                 rate_hz: float = TaskConfig.rate_hz) -> None:
         if action_mode not in ("absolute", "delta"):
             raise ValueError(f"action_mode must be 'absolute' or 'delta' (got {action_mode!r})")
         self.config = TaskConfig(sensor=sensor, contact_method=contact, cameras=cameras,  # type: ignore[arg-type]
-                                 camera_size=camera_size)
+                                 camera_size=camera_size, rate_hz=rate_hz)
         self.task = make_task(task, self.config)
         self.session = TaskSession(self.task, record=True)
         self.action_mode = action_mode

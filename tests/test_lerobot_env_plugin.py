@@ -152,6 +152,7 @@ def test_the_export_and_the_environment_agree_on_keys_shapes_and_values(lift_can
     observed = [f for f in features if f.kind != "ACTION"]
     env = make("lift_can", NO_CAMERAS)
     try:
+        assert list(pq.read_table(lr / "meta/tasks.parquet").to_pandas().index) == [env.task_description]
         obs, _ = env.reset(seed=EXPORT_SEED)
         for row in rows:
             flat = flat_observation(obs)
@@ -261,7 +262,7 @@ def univtac_config(**kwargs):
 def test_make_env_and_preprocess_observation():
     lerobot_or_skip()
     from lerobot.envs.factory import make_env
-    from lerobot.envs.utils import env_to_policy_features, preprocess_observation
+    from lerobot.envs.utils import add_envs_task, env_to_policy_features, preprocess_observation
 
     cfg = univtac_config(episode_length=4)
     envs = make_env(cfg, n_envs=2)
@@ -274,6 +275,7 @@ def test_make_env_and_preprocess_observation():
         for key, feature in expected.items():
             assert tuple(batch[key].shape) == (2, *feature.shape), key
         assert vec.call("_max_episode_steps")[0] == 4
+        assert add_envs_task(vec, batch)["task"] == ["lift can", "lift can"]
     finally:
         vec.close()
 

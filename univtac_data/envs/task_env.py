@@ -13,6 +13,8 @@ Action
     (x, y in [-0.5, 0.5] m, z in [0, 0.6] m) and [0, 0.08] m. ``"delta"``: (7,) float32, a world-frame
     displacement (m, at most 2 cm a step), a rotation vector (rad, at most 0.2 rad a step) and an opening change
     (m, at most 1 cm a step), applied to the last target.
+Rate
+    ``rate_hz`` policy steps a second (default 50 Hz; one step must be a whole number of 2 ms control ticks).
 Reward, termination
     reward 1.0 on the step success first holds, else 0.0; ``terminated`` when the task succeeds or a tactile
     safety rule is broken (``info["safety"]`` says which); ``truncated`` by the TimeLimit at the task's step

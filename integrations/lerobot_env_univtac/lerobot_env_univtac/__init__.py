@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 
-from lerobot_env_univtac.env import NAMESPACE, ExportObservation, gym_id, make_env, register_envs
+from lerobot_env_univtac.env import NAMESPACE, ExportObservation, TaskDescription, gym_id, make_env, register_envs
 from lerobot_env_univtac.features import EnvFeature, env_features, features_map
 
 register_envs()
@@ -20,5 +20,5 @@ register_envs()
 if importlib.util.find_spec("lerobot") is not None:
     from lerobot_env_univtac.configs import UnivtacEnv  # noqa: F401  (registers --env.type=univtac)
 
-__all__ = ["NAMESPACE", "EnvFeature", "ExportObservation", "env_features", "features_map", "gym_id", "make_env",
+__all__ = ["NAMESPACE", "EnvFeature", "ExportObservation", "TaskDescription", "env_features", "features_map", "gym_id", "make_env",
            "register_envs"]

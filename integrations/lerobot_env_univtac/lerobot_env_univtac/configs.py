@@ -24,7 +24,7 @@ class UnivtacEnv(EnvConfig):
     fps: int = 50
     episode_length: int | None = None  # policy steps before truncation; None: the task's own limit
     sensor: str = "gelsight_mini"
-    contact: str = "geometric"  # the elastic contact model: geometric, halfspace, layer
+    contact: str = "geometric"  # the tactile contact model of the images: geometric or elastic
     cameras: bool = True  # the head and wrist cameras (False: tactile images and state only)
     camera_width: int = 480  # px
     camera_height: int = 270  # px

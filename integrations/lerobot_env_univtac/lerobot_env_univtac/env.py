@@ -15,9 +15,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import WrapperSpec
 
 import univtac_data.envs  # noqa: F401  (registers univtac/<Task>-v0, whose step limits these reuse)
 from univtac_data.envs.task_env import TaskEnv
+from univtac_data.export.lerobot import task_text
 from univtac_data.export.lerobot_features import STATE_NAMES
 from univtac_data.generators.scene.gripper import MAX_OPENING_M, PADS
 from univtac_data.generators.tasks.registry import TASKS, task_class
@@ -31,10 +33,12 @@ def gym_id(task: str) -> str:
     return f"{NAMESPACE}/{task_class(task).gym_id.split('/', 1)[1]}"
 
 
-class ExportObservation(gym.ObservationWrapper[dict[str, Any], np.ndarray, dict[str, Any]]):
+class ExportObservation(gym.ObservationWrapper[dict[str, Any], np.ndarray, dict[str, Any]],
+                        gym.utils.RecordConstructorArgs):
     """Reshape a :class:`TaskEnv` observation into the export's: the 10-d state and the pads' I_pure images."""
 
-    def __init__(self, env: TaskEnv) -> None:
+    def __init__(self, env: gym.Env[dict[str, Any], np.ndarray]) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
         super().__init__(env)
         base = env.observation_space
         assert isinstance(base, spaces.Dict)
@@ -62,18 +66,35 @@ class ExportObservation(gym.ObservationWrapper[dict[str, Any], np.ndarray, dict[
         return {**observation, "pixels": pixels, "agent_pos": state}
 
 
+class TaskDescription(gym.Wrapper[dict[str, Any], np.ndarray, dict[str, Any], np.ndarray],
+                      gym.utils.RecordConstructorArgs):
+    """Carries ``task_description``, the export's task string ("lift can"), and ``task``, the task's name
+    ("lift_can"), where LeRobot's evaluation looks for both (on the outermost wrapper; language-conditioned
+    policies read the description); otherwise a pass-through."""
+
+    def __init__(self, env: gym.Env[dict[str, Any], np.ndarray], task: str) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, task=task)
+        super().__init__(env)
+        self.task = task
+        self.task_description = task_text("task", task)
+
+
 def make_env(task: str, *, sensor: str = "gelsight_mini", contact: str = "geometric", cameras: bool = True,
              camera_width: int = 480, camera_height: int = 270, rate_hz: float = 50.0,
-             render_mode: str | None = "rgb_array") -> gym.Env[dict[str, Any], np.ndarray]:
-    """The gym entry point of ``lerobot_env_univtac/<Task>-v0`` (the step limit is gym's TimeLimit)."""
-    env = TaskEnv(task, sensor=sensor, contact=contact, cameras=cameras, camera_size=(camera_width, camera_height),
-                  rate_hz=rate_hz, render_mode=render_mode)
-    return ExportObservation(env)
+             render_mode: str | None = "rgb_array") -> TaskEnv:
+    """The gym entry point of ``lerobot_env_univtac/<Task>-v0``: the bare :class:`TaskEnv` (LeRobot's
+    ``EnvConfig`` passes scalars; this makes the camera size of them). ``gym.make`` adds the step limit
+    (TimeLimit), then :class:`ExportObservation` and :class:`TaskDescription`, in that order, outermost last."""
+    return TaskEnv(task, sensor=sensor, contact=contact, cameras=cameras, camera_size=(camera_width, camera_height),
+                   rate_hz=rate_hz, render_mode=render_mode)
 
 
 def register_envs() -> None:
     """Register ``lerobot_env_univtac/<Task>-v0`` for every task (idempotent)."""
     for name, cls in TASKS.items():
         if gym_id(name) not in gym.registry:
+            # additional wrappers go outside gym's TimeLimit: LeRobot reads task_description off the outermost
+            wrappers = (WrapperSpec("ExportObservation", "lerobot_env_univtac.env:ExportObservation", {}),
+                        WrapperSpec("TaskDescription", "lerobot_env_univtac.env:TaskDescription", {"task": name}))
             gym.register(id=gym_id(name), entry_point="lerobot_env_univtac.env:make_env", kwargs={"task": name},
-                         max_episode_steps=cls.max_steps)
+                         max_episode_steps=cls.max_steps, additional_wrappers=wrappers)

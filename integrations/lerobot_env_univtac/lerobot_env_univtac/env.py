@@ -17,7 +17,6 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.registration import WrapperSpec
 
-import univtac_data.envs  # noqa: F401  (registers univtac/<Task>-v0, whose step limits these reuse)
 from univtac_data.envs.task_env import TaskEnv
 from univtac_data.export.lerobot import task_text
 from univtac_data.export.lerobot_features import STATE_NAMES

@@ -13,6 +13,8 @@ Action
     (x, y in [-0.5, 0.5] m, z in [0, 0.6] m) and [0, 0.08] m. ``"delta"``: (7,) float32, a world-frame
     displacement (m, at most 2 cm a step), a rotation vector (rad, at most 0.2 rad a step) and an opening change
     (m, at most 1 cm a step), applied to the last target.
+Rate
+    ``rate_hz`` policy steps a second (default 50 Hz; one step must be a whole number of 2 ms control ticks).
 Reward, termination
     reward 1.0 on the step success first holds, else 0.0; ``terminated`` when the task succeeds or a tactile
     safety rule is broken (``info["safety"]`` says which); ``truncated`` by the TimeLimit at the task's step
@@ -44,11 +46,12 @@ class TaskEnv(gym.Env[dict[str, Any], np.ndarray]):
 
     def __init__(self, task: str, *, sensor: str = "gelsight_mini", contact: str = "geometric",
                  cameras: bool = True, camera_size: tuple[int, int] = (480, 270), action_mode: str = "absolute",
-                 tactile_extras: bool = False, render_mode: str | None = "rgb_array") -> None:
+                 tactile_extras: bool = False, render_mode: str | None = "rgb_array",
+                 rate_hz: float = TaskConfig.rate_hz) -> None:
         if action_mode not in ("absolute", "delta"):
             raise ValueError(f"action_mode must be 'absolute' or 'delta' (got {action_mode!r})")
         self.config = TaskConfig(sensor=sensor, contact_method=contact, cameras=cameras,  # type: ignore[arg-type]
-                                 camera_size=camera_size)
+                                 camera_size=camera_size, rate_hz=rate_hz)
         self.task = make_task(task, self.config)
         self.session = TaskSession(self.task, record=True)
         self.action_mode = action_mode

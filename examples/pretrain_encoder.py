@@ -68,6 +68,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", type=Path, help="an indenter corpus (univtac-data generate indenters)")
     src.add_argument("--generate", type=int, metavar="N", help="generate N episodes per shape into OUT_DIR/corpus")
+    src.add_argument("--table", type=Path, metavar="JSON", help="print the Markdown results table of a result file")
     p.add_argument("--out-dir", type=Path, default=Path("out/encoder_recipe"), help="corpus, cache, checkpoint")
     p.add_argument("--sensor", default="gelsight_mini")
     p.add_argument("--shapes", default="all", help="with --generate: all, or a comma-separated list")
@@ -80,7 +81,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--held-out", type=float, default=0.25, help="share of each shape's episodes held out")
     p.add_argument("--steps", type=int, default=3000, help="optimiser steps (at most, with --max-minutes)")
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
-    p.add_argument("--batch-size", type=int, default=128)
+    p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     p.add_argument("--seed", type=int, default=0)
@@ -516,8 +517,51 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, torch {torch.__version__}"
 
 
+def markdown_table(result: dict[str, Any]) -> str:
+    """The README's results table, from a result JSON."""
+    rows = [("14-shape linear probe, held-out frames", "accuracy"), ("  95 % interval (bootstrap over episodes)", "ci"),
+            ("  95 % Wilson interval over frames (too narrow: frames of an episode correlate)", "wilson"),
+            ("  majority vote per held-out episode", "vote"),
+            ("position in the pad plane, mean error (mm)", "position_tangential_mm"),
+            ("position along the normal, mean error (mm)", "position_normal_mm"),
+            ("yaw modulo the shape's symmetry, mean error (deg)", "yaw_deg"),
+            ("peak contact depth, mean error (mm)", "peak_depth_mm")]
+    base = result["baselines"]
+
+    def cell(r: dict[str, Any] | None, key: str) -> str:
+        if r is None:
+            if key == "accuracy":
+                return f"{100 * base['chance']:.1f} % (chance)"
+            if key in base["errors_of_the_mean"]:
+                return f"{base['errors_of_the_mean'][key]:.3g}"
+            return ""
+        if key == "accuracy":
+            return f"{100 * r['accuracy']:.1f} %"
+        if key == "ci":
+            lo, hi = r["episode_bootstrap95"]
+            return f"{100 * lo:.1f}-{100 * hi:.1f} %"
+        if key == "wilson":
+            lo, hi = r["wilson95"]
+            return f"{100 * lo:.1f}-{100 * hi:.1f} % ({r['samples']} frames)"
+        if key == "vote":
+            return f"{100 * r['episode_vote_accuracy']:.1f} % of {r['episodes']}"
+        return f"{r['errors'][key]:.3g}"
+
+    lines = ["| held-out episodes (linear probes on frozen features) | trained encoder | random-init encoder | "
+             "no encoder (predict the training mean) |", "|---|---|---|---|"]
+    for label, key in rows:
+        lines.append(f"| {label} | " + " | ".join(cell(r, key) for r in (result["probe"]["trained"],
+                                                                          result["probe"]["random_init"], None))
+                     + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
+    if args.table:
+        result = json.loads(args.table.read_text())
+        print(markdown_table(result))
+        return result
     torch.set_num_threads(args.threads)
     size = tuple(args.image_size)
     generation_s = None

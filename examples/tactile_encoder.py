@@ -6,7 +6,7 @@
   symmetry (hexagon 6, cross 4, ...) knows yaw only modulo 360/k deg.
 * ``indenter_in_pad``: the pose of the pressed indenter (not the base plate the dataset's ``object_pose``
   holds) in the gel-pad-centre frame: position in mm and yaw about the pad normal in rad.
-* ``TactileEncoder``: a small CNN (4 stages, 32-256 channels, global average pooling to 256 features) with
+* ``TactileEncoder``: a small CNN (4 stages, 16-128 channels, global average pooling to 128 features) with
   the paper's three pathways as heads: shape (I_pure reconstruction, weighted toward the contact region, and
   an episode-consistency term), contact (depth map D weighted toward the contact, marker positions M, peak
   depth) and pose (symmetry-aware).
@@ -122,8 +122,9 @@ class EncoderConfig:
     height: int = 48
     width: int = 64
     n_markers: int = 63
-    widths: tuple[int, ...] = (32, 64, 128, 256)
-    projection_dim: int = 128
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    projection_dim: int = 64
+    decoder_width: int = 64
 
     def to_dict(self) -> dict[str, object]:
         return {**asdict(self), "widths": list(self.widths)}
@@ -154,9 +155,9 @@ class TactileEncoder(nn.Module):
         # the decoder starts from the feature vector (not the feature map), so what it reconstructs must be
         # in the features a probe reads
         self.seed_hw = (math.ceil(config.height / 16), math.ceil(config.width / 16))
-        self.seed = nn.Linear(feat, 128 * self.seed_hw[0] * self.seed_hw[1])
+        c = config.decoder_width
+        self.seed = nn.Linear(feat, c * self.seed_hw[0] * self.seed_hw[1])
         ups: list[nn.Module] = []
-        c = 128
         for _ in range(4):
             ups += [nn.ConvTranspose2d(c, c // 2, 4, 2, 1), nn.BatchNorm2d(c // 2), nn.ReLU(inplace=True)]
             c //= 2
@@ -175,7 +176,7 @@ class TactileEncoder(nn.Module):
     def forward(self, marked_rgb: torch.Tensor) -> dict[str, torch.Tensor]:
         z = self.encode(marked_rgb)
         h, w = self.config.height, self.config.width
-        image = self.decoder(self.seed(z).view(-1, 128, *self.seed_hw))[..., :h, :w]
+        image = self.decoder(self.seed(z).view(-1, self.config.decoder_width, *self.seed_hw))[..., :h, :w]
         contact = self.contact_head(z)
         pose = self.pose_head(z)
         return {"features": z, "pure_rgb": torch.sigmoid(image[:, :3]), "depth_mm": image[:, 3:],

@@ -27,6 +27,15 @@ def load(name: str) -> ModuleType:
     return module
 
 
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():  # type: ignore[no-untyped-def]
+    """One torch thread: the tensors here are tiny, and a second thread only waits on a shared machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def recipe() -> ModuleType:
     return load("pretrain_encoder")
@@ -98,7 +107,6 @@ def test_symmetry_from_the_indenter_definitions() -> None:
 
 
 def test_training_lowers_the_loss_and_checkpoints_reload(recipe: ModuleType, corpus, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    torch.set_num_threads(1)
     train, held, _, _ = recipe.split_masks(corpus, 0.34)
     model = recipe.make_model(corpus, train, (24, 32), seed=0)
     history = recipe.train(model, corpus, train, steps=40, batch_size=16, lr=3e-3, seed=0, log_every=1000)

@@ -97,7 +97,8 @@ def generate_corpus(out: Path, sensor: str, episodes: int, frames: int, shapes: 
                     contact: str) -> tuple[Path, float]:
     """Run the corpus generator (resumable: an interrupted run picks up where it stopped). Returns the path
     and the wall time in s."""
-    cmd = [sys.executable, "-m", "univtac_data.cli.main", "generate", "indenters", "--out", str(out), "--sensor", sensor,
+    cmd = [sys.executable, "-m", "univtac_data.cli.main", "generate", "indenters", "--out", str(out),
+           "--sensor", sensor,
            "--shapes", shapes, "--episodes-per-shape", str(episodes), "--frames-per-episode", str(frames),
            "--workers", str(workers), "--contact", contact]
     start = time.perf_counter()
@@ -477,9 +478,9 @@ def save_chart(result: dict[str, Any], path: Path) -> None:
             ("peak_depth_mm", "peak depth (mm)"), ("yaw_deg", "yaw / 10 (deg, mod symmetry)")]
     x = np.arange(len(keys))
     scale = [1, 1, 1, 0.1]
+    mean_only = {"errors": result["baselines"]["errors_of_the_mean"]}
     for j, (name, res, colour) in enumerate((("trained", trained, "tab:blue"), ("random init", rand, "tab:gray"),
-                                              ("predict the mean", {"errors": result["baselines"]["errors_of_the_mean"]},
-                                               "tab:orange"))):
+                                              ("predict the mean", mean_only, "tab:orange"))):
         ax.bar(x + (j - 1) * 0.27, [res["errors"][k] * s for (k, _), s in zip(keys, scale)], 0.27, label=name,
                color=colour)
     ax.set_xticks(x, [lab for _, lab in keys], fontsize=8, rotation=15)
@@ -615,8 +616,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     for label in ("trained", "random_init"):
         r = probe[label]
-        print(f"{label:12s} probe {100 * r['accuracy']:.1f} % (episodes bootstrap {100 * r['episode_bootstrap95'][0]:.1f}"
-              f"-{100 * r['episode_bootstrap95'][1]:.1f}; vote per episode {100 * r['episode_vote_accuracy']:.1f} %)  "
+        lo, hi = r["episode_bootstrap95"]
+        print(f"{label:12s} probe {100 * r['accuracy']:.1f} % (episodes bootstrap {100 * lo:.1f}"
+              f"-{100 * hi:.1f}; vote per episode {100 * r['episode_vote_accuracy']:.1f} %)  "
               + "  ".join(f"{k} {v:.3f}" for k, v in r["errors"].items()))
     print("trained heads: " + "  ".join(f"{k} {v:.3f}" for k, v in own_heads.items()))
     if args.out_json:

@@ -1,0 +1,131 @@
+"""The encoder pretraining recipe (examples/pretrain_encoder.py): the held-out split, training on a tiny
+generated corpus, checkpoints, and the symmetry-aware pose target."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+import torch
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+SHAPES = ("cross", "pacman", "sphere")
+
+
+def load(name: str) -> ModuleType:
+    sys.path.insert(0, str(EXAMPLES))
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():  # type: ignore[no-untyped-def]
+    """One torch thread: the tensors here are tiny, and a second thread only waits on a shared machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def recipe() -> ModuleType:
+    return load("pretrain_encoder")
+
+
+@pytest.fixture(scope="module")
+def corpus(recipe: ModuleType, tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """Three shapes x three episodes x 14 frames of GelSight Mini, read at 24 x 32."""
+    from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
+    from univtac_data.storage import DatasetWriter
+
+    root = tmp_path_factory.mktemp("recipe") / "corpus"
+    writer = DatasetWriter.open(root, storage="hdf5", sensors=["gelsight_mini"])
+    for shape in SHAPES:
+        for k in range(3):
+            writer.add(run_indenter_episode(IndenterEpisodeSpec("gelsight_mini", shape, k, frames=14)))
+    writer.close()
+    return recipe.load_corpus(root, "gelsight_mini", (24, 32), 0.01, cache=root.parent / "cache.pt")
+
+
+def test_probe_never_sees_frames_of_its_test_episodes(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus) -> None:
+    train, held, train_ids, held_ids = recipe.split_masks(corpus, 0.34)
+    assert not set(train_ids) & set(held_ids)
+    assert not (train & held).any() and (train | held).all()
+    train_eps = {corpus.episode_ids[e] for e in corpus.episode[train].tolist()}
+    held_eps = {corpus.episode_ids[e] for e in corpus.episode[held].tolist()}
+    assert train_eps == set(train_ids) and held_eps == set(held_ids) and not train_eps & held_eps
+    # every shape is on both sides, so the probe is asked only about shapes it was fitted on
+    assert set(corpus.label[train].tolist()) == set(corpus.label[held].tolist()) == set(range(len(SHAPES)))
+    # the probe is fitted on the training rows only: a held-out row's prediction depends on no other
+    # held-out row (standardisation statistics and weights come from the training rows)
+    gen = torch.Generator().manual_seed(0)
+    feats = torch.randn(len(corpus.label), 16, generator=gen)
+    pred = recipe.linear_probe(feats[train], corpus.label[train], feats[held], len(SHAPES))
+    other = feats[held].clone()
+    other[1:] = 100.0 * torch.randn(other[1:].shape, generator=gen)
+    assert recipe.linear_probe(feats[train], corpus.label[train], other, len(SHAPES))[0] == pred[0]
+    # the split is by episode id alone: another episode never moves an existing one of another shape
+    ids = train_ids + held_ids
+    _, more_held = recipe.held_out_split(ids + ["gelsight_mini-cross-0099"],
+                                         [i.split("-")[1] for i in ids] + ["cross"], 0.34)
+    assert {i for i in more_held if "-cross-" not in i} == {i for i in held_ids if "-cross-" not in i}
+
+
+def test_corpus_keeps_frames_in_contact_with_pose_targets(corpus) -> None:  # type: ignore[no-untyped-def]
+    assert corpus.marked.shape[1:] == (3, 24, 32) and corpus.marked.dtype == torch.uint8
+    assert float(corpus.peak.min()) >= 0.01
+    # the indenter's mounting face is 5 mm (tip height) behind the gel, along the pad normal (z)
+    assert torch.allclose(corpus.position[:, 2].abs().mean(), torch.tensor(5.0), atol=0.6)
+    assert float(corpus.position[:, :2].abs().max()) < 3.0
+    orders = {corpus.shapes[int(lab)]: int(o) for lab, o in zip(corpus.label, corpus.order)}
+    assert orders == {"cross": 4, "pacman": 1, "sphere": 0}
+
+
+def test_symmetry_from_the_indenter_definitions() -> None:
+    enc = load("tactile_encoder")
+    assert [enc.rotational_symmetry(s) for s in ("sphere", "hexagon", "star", "pacman", "cylinder_side")] == \
+        [enc.CONTINUOUS, 6, 5, 1, 2]
+    # a yaw error is measured modulo the symmetry: a cross turned by 88 deg is 2 deg off; round shapes have none
+    yaw = torch.tensor([0.0, 0.0, 0.0])
+    order = torch.tensor([4, 1, 0])
+    turn = math.radians(88.0)
+    pred = torch.tensor([[math.cos(4 * turn), math.sin(4 * turn)], [math.cos(turn), math.sin(turn)], [1.0, 0.0]])
+    err = enc.yaw_error_deg(pred, yaw, order)
+    assert err[0].item() == pytest.approx(2.0, abs=1e-3) and err[1].item() == pytest.approx(88.0, abs=1e-3)
+    assert math.isnan(err[2].item())
+    target, observable = enc.yaw_target(torch.tensor([0.1, 0.1 + math.pi / 2]), torch.tensor([4, 4]))
+    assert torch.allclose(target[0], target[1], atol=1e-5) and observable.all()
+
+
+def test_training_lowers_the_loss_and_checkpoints_reload(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus, tmp_path: Path) -> None:
+    train, held, _, _ = recipe.split_masks(corpus, 0.34)
+    model = recipe.make_model(corpus, train, (24, 32), seed=0)
+    history = recipe.train(model, corpus, train, steps=40, batch_size=16, lr=3e-3, seed=0, log_every=1000)
+    first = np.mean([h["total"] for h in history[:5]])
+    last = np.mean([h["total"] for h in history[-5:]])
+    assert np.isfinite(last) and last < 0.8 * first, (first, last)
+    path = tmp_path / "encoder.pt"
+    recipe.save_checkpoint(model, path, corpus.shapes)
+    again = recipe.load_checkpoint(path)
+    model.eval()
+    images = corpus.marked[:8].float() / 255.0
+    with torch.no_grad():
+        a, b = model(images), again(images)
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+    feats, _ = recipe.encode_all(again, corpus)
+    report = recipe.probe_report(feats, corpus, train, held, seed=0)
+    assert report["samples"] == int(held.sum()) and 0.0 <= report["accuracy"] <= 1.0
+    lo, hi = report["wilson95"]
+    assert lo <= report["accuracy"] <= hi

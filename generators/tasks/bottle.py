@@ -73,20 +73,25 @@ def bottle_xml(name: str, pos: np.ndarray, quat: np.ndarray, origin_height_m: fl
 class InHandPose:
     """The bottle's axis in the gripper frame as the pads see it.
 
-    ``angle_rad``: the axis's angle in the gripper's y-z plane from gripper +z (towards gripper +y positive),
-    i.e. the turn of the bottle about the closing axis relative to the fingers; ``offset_m``: where the axis
-    crosses the pads' centre line, along gripper y (m); ``both``: both pads touch.
+    ``angle_rad``: the axis line's angle in the gripper's y-z plane from gripper +z towards gripper +y, in
+    (-pi/2, pi/2] (a strip has no arrow: ``axis_world`` picks the direction); ``point_m``: (y, z) m, the point
+    of the axis nearest the gripper centre (where the pads' centre line meets the bottle: its grip point);
+    ``both``: both pads touch.
     """
 
     angle_rad: float
-    offset_m: float
-    height_m: float
+    point_m: tuple[float, float]
     both: bool
 
-    def axis_world(self, ee_quat: np.ndarray) -> np.ndarray:
-        """(3,) unit axis direction in the world for the gripper orientation ``ee_quat`` (w, x, y, z)."""
-        local = np.array([0.0, math.sin(self.angle_rad), math.cos(self.angle_rad)])
-        return quat_to_mat(ee_quat) @ local
+    def axis_world(self, ee_quat: np.ndarray, towards: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+        """(3,) unit axis direction in the world for the gripper orientation ``ee_quat`` (w, x, y, z), the way
+        that points less than 90 deg from ``towards`` (the cap's side, which the expert knows roughly)."""
+        axis = quat_to_mat(ee_quat) @ np.array([0.0, math.sin(self.angle_rad), math.cos(self.angle_rad)])
+        return axis if float(np.dot(axis, towards)) >= 0 else -axis
+
+    def grip_point_world(self, ee_pose: np.ndarray) -> np.ndarray:
+        """(3,) m world: the grip point on the axis for the gripper pose ``ee_pose`` (7,)."""
+        return ee_pose[:3] + quat_to_mat(ee_pose[3:]) @ np.array([0.0, *self.point_m])
 
 
 def _strip_angle_in_gripper(reading: TouchReading, pad: str) -> float:
@@ -107,23 +112,23 @@ def _strip_angle_in_gripper(reading: TouchReading, pad: str) -> float:
 def in_hand_from_touch(left: TouchReading, right: TouchReading) -> InHandPose:
     """The bottle's axis in the gripper frame from the two pads' contact strips (see the module docstring).
     A pad that feels nothing contributes nothing; with neither pad touching, the axis is taken along gripper z."""
-    angles, ys, zs = [], [], []
+    angles, points = [], []
     for pad, reading in (("left", left), ("right", right)):
         if not reading.touching:
             continue
         angles.append(_strip_angle_in_gripper(reading, pad))
-        ys.append((reading.centroid_mm[0] if pad == "left" else -reading.centroid_mm[0]) / 1000.0)
-        zs.append(reading.centroid_mm[1] / 1000.0)
+        x_mm, y_mm = reading.centroid_mm
+        points.append(((x_mm if pad == "left" else -x_mm) / 1000.0, y_mm / 1000.0))
     if not angles:
-        return InHandPose(0.0, 0.0, 0.0, False)
+        return InHandPose(0.0, (0.0, 0.0), False)
     # average directions, not angles: two strips near +-pi/2 are the same line
     c = sum(math.cos(2 * a) for a in angles)
     s = sum(math.sin(2 * a) for a in angles)
     angle = 0.5 * math.atan2(s, c)
-    y, z = float(np.mean(ys)), float(np.mean(zs))
-    # where the strip's line crosses gripper z = 0 (the pads' centre line), along gripper y
-    offset = y - z * math.tan(angle)
-    return InHandPose(angle, offset, z, len(angles) == 2)
+    centroid = np.mean(points, axis=0)
+    direction = np.array([math.sin(angle), math.cos(angle)])
+    foot = centroid - float(np.dot(centroid, direction)) * direction  # nearest the gripper centre
+    return InHandPose(angle, (float(foot[0]), float(foot[1])), len(angles) == 2)
 
 
 def tilt_rad(axis: np.ndarray) -> float:

@@ -246,14 +246,13 @@ class PutBottleInShelf(Task):
 
     def _place(self, ctx: ExpertContext, pose: InHandPose) -> Iterator[Step]:
         """Carry the bottle's axis (where the pads see it) over the cavity centre, lower it in, let go."""
-        rot = quat_to_mat(ctx.target[3:7])
-        axis = pose.axis_world(ctx.target[3:7])
-        # the pads' line crosses the bottle's axis at the gripper origin shifted by offset along gripper y;
-        # the base is GRIP_HEIGHT_M down the axis from there (the grip height the camera chose)
-        on_axis = rot[:, 1] * pose.offset_m
-        base_from_hand = on_axis - axis * GRIP_HEIGHT_M
+        ee = ctx.ee_pose()
+        axis = pose.axis_world(ee[3:])
+        # the base is GRIP_HEIGHT_M down the axis from the grip point (the height the camera chose)
+        base_from_hand = pose.grip_point_world(ee) - ee[:3] - axis * GRIP_HEIGHT_M
+        offset = quat_to_mat(ee[3:]).T @ (pose.grip_point_world(ee) - ee[:3])
         ctx.correction("place from the in-hand pose", "contact strip centroids and angle on both pads",
-                       offset_mm=pose.offset_m * 1000, axis_tilt_deg=math.degrees(tilt_rad(axis)))
+                       offset_mm=float(offset[1]) * 1000, axis_tilt_deg=math.degrees(tilt_rad(axis)))
         cavity = self.cavity_centre(ctx.layout)
         above = cavity - base_from_hand + [0.0, 0.0, RIM_HEIGHT_M + 0.03]
         yield from move_to(ctx, above, speed_m_s=0.45, primitive="carry")

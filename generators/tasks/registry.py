@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from univtac_data.generators.tasks.base import Task, TaskConfig
 from univtac_data.generators.tasks.grasp_classify import GraspClassify
+from univtac_data.generators.tasks.lift_bottle import LiftBottle
 from univtac_data.generators.tasks.lift_can import LiftCan
 from univtac_data.generators.tasks.put_bottle_in_shelf import PutBottleInShelf
 from univtac_data.schema.sensors import get_sensor
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan, GraspClassify, PutBottleInShelf)}
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan, GraspClassify, LiftBottle, PutBottleInShelf)}
 TASK_NAMES: tuple[str, ...] = tuple(TASKS)
 
 

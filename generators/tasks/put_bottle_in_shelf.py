@@ -88,7 +88,8 @@ TILT_RANGE_RAD = (math.radians(60.0), math.radians(71.5))
 OPEN_MARGIN_M = 0.012
 # the kit's grasp depth (0.5 mm on a GelSight Mini) holds a can; a bottle tilted 70 deg with its water 6.5 cm
 # below the pads needs a firmer grip not to turn (0.7 mm, still half the Mini's 1.5 mm safe limit)
-GRIP_DEPTH_FACTOR = 1.4
+GRIP_DEPTH_FACTOR = 1.8
+REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright
 # the swing (controlled slip), per policy step
 PIVOT_DONE_RAD = math.radians(5.0)
 PIVOT_MOVING_RAD = math.radians(0.3)  # turning at least this much a step: leave the grip as it is
@@ -112,7 +113,7 @@ def grasp_law(profile: SensorProfile) -> GraspLaw:
     """The kit's tactile grasp, with a finger lead of 2.5 mm (the kit's 1.5 mm stalls short of 0.5 mm on a
     0.3 kg bottle) and a 20 mm/s slow phase that pushes a bottle one pad reached first across to the other
     (the camera's centre is off by up to 4 mm) in a quarter of UniVTAC's time."""
-    return GraspLaw(threshold_mm=GRIP_DEPTH_FACTOR * grasp_depth_mm(profile), v_slow_m_s=0.02, max_lead_m=0.0025)
+    return GraspLaw(threshold_mm=GRIP_DEPTH_FACTOR * grasp_depth_mm(profile), v_slow_m_s=0.02, max_lead_m=0.004)
 
 
 class PutBottleInShelf(Task):
@@ -122,6 +123,7 @@ class PutBottleInShelf(Task):
     max_steps = 300
     primitive_names = ["move", "grasp", "tilt", "swing", "regrasp", "carry", "place", "release", "hold"]
     max_in_hand_slip_mm = 10.0
+    controlled_slip_primitives = ("swing",)
 
     # --- scene -------------------------------------------------------------------------------------
     def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
@@ -242,7 +244,9 @@ class PutBottleInShelf(Task):
         ctx.correction("swing upright", "contact strip angle on both pads with the hand's orientation: bottle tilt",
                        tilt_before_deg=math.degrees(start), tilt_after_deg=math.degrees(end),
                        loosened_mm=(float(ctx.target[7]) - start_width) * 1000, steps=steps)
-        yield from close_until(ctx, replace(law, threshold_mm=law.threshold_mm / GRIP_DEPTH_FACTOR), primitive="regrasp")
+        # upright in the hand, the bottle needs only to be carried: a lighter grip, quicker to make
+        yield from close_until(ctx, replace(law, threshold_mm=REGRIP_FACTOR * law.threshold_mm / GRIP_DEPTH_FACTOR),
+                               primitive="regrasp")
 
     def _place(self, ctx: ExpertContext, pose: InHandPose) -> Iterator[Step]:
         """Carry the bottle's axis (where the pads see it) over the cavity centre, lower it in, let go."""

@@ -8,9 +8,10 @@ Description
     say it hangs upright, grips again, carries it over the cavity with the in-hand pose the pads read, lowers
     it in and lets go.
 Objects (procedural; plausible real sizes)
-    ``bottle``: ``bottle.py``, a 50 cl water bottle 6.5 cm across and 21.5 cm tall, 0.30 kg; its origin on the
-    axis 11.5 cm above the base, where the expert grips (the line between the pads, which the bottle turns
-    about). Shelf (fixed): a block 14 x 24 cm, 8 cm high, with a cavity on top: a square 8.5 x 8.5 cm
+    ``bottle``: ``bottle.py``, a half-full 50 cl water bottle 6.5 cm across and 21.5 cm tall, 0.275 kg, its
+    centre of mass 4.5 cm above the base; its origin on the axis 13 cm above the base, where the expert grips
+    (the line between the pads, which the bottle turns about; 8.5 cm above the centre of mass, the lever
+    gravity turns it with). Shelf (fixed): a block 14 x 24 cm, 8 cm high, with a cavity on top: a square 8.5 x 8.5 cm
     pocket with a 2 cm rim (10 mm clearance around the bottle's body on each side). Ground: a plane,
     friction 0.8.
 Randomisation (seeded)
@@ -18,17 +19,20 @@ Randomisation (seeded)
     bottle's centre is off by U(-4, 4) mm in x and y; the grip height by U(-3, 3) mm; the lift U(15, 20) cm;
     the hand's tilt 60 + U(0, 11.5) deg (UniVTAC's numbers).
 Expert (closed loop; the signal behind each correction is recorded in ``memory['corrections']``)
-    descend over the seen bottle (top-down, fingers closing along world y); tactile grasp to 0.5 mm (0.3 mm on
-    the GF225 and Xense WS); lift; tilt the hand about the closing axis. **Swing upright (controlled slip)**:
-    each step, the pads' contact strips give the bottle's axis in the gripper frame (``bottle.in_hand_from_touch``)
-    and, with the hand's orientation, its tilt from vertical; while it turns by less than 0.4 deg a step and the
-    shallower pad still presses more than ``PIVOT_MIN_DEPTH_MM``, open by 0.04 mm; when the press falls below
-    it, close by 0.04 mm; when the tilt falls below 3 deg or stops falling for 0.2 s, grip again with the
-    tactile law. Recorded: the tilt before and after (from touch), the opening given up (mm) and the steps.
+    descend over the seen bottle (top-down, fingers closing along world y); tactile grasp to 0.9 mm (0.54 mm on
+    the GF225 and Xense WS: ``GRIP_DEPTH_FACTOR``); lift while tilting the hand about the closing axis.
+    **Swing upright (controlled slip)**: each step, the pads' contact strips give the bottle's axis in the
+    gripper frame (``bottle.in_hand_from_touch``) and, with the hand's orientation, its tilt from vertical; while
+    it turns by less than 1.5 deg a step, open by 0.2 mm while the shallower pad presses more than 0.3 mm and by
+    0.03 mm below that; when it turns faster than 3 deg a step or the press falls below 0.09 mm (the weight
+    must still hang on friction), close by 0.03 mm; once the tilt is under 5 deg, or it swung through upright,
+    or it turns by less than 0.15 deg a step for 8 steps at the loosest press, grip again to 0.4 mm.
+    Recorded: the tilt before and after (from touch), the opening given up (mm) and the steps.
     **Place from the in-hand pose**: where the strips cross the pads (their centroids, with the strip angle)
     gives the bottle axis's offset from the gripper centre; the hand is aimed so that the axis, not the hand,
-    is over the cavity centre (recorded: the offset, mm). Lower the base to 3 mm above the cavity floor,
-    open, lift away.
+    is over the cavity centre (recorded: the offset, mm, and the tilt). Lower the base to 3 mm above the cavity
+    floor, open, lift away. A bottle that still leans by up to 20 deg stands up in the cavity once let go (its
+    centre of mass 4.5 cm up a base 3.25 cm in radius tips back below 36 deg).
 Success
     bottle base centre within 2 cm (xy) of the cavity centre, base less than 1.5 cm above the cavity floor,
     axis tilted less than 15 deg from vertical.
@@ -39,8 +43,8 @@ Safety (per step; a violation makes the rollout invalid)
     pads, the grip height's): that alone moves it up to 4.6 mm; the bottle also sinks along the pads by up
     to 3 mm while the grasp is loose (seeds 0-29: at most 7.9 mm in all).
 Physics (``benchmarks/pivot_stability.py``; docs/tasks.md)
-    the kit's scene options (1 ms, implicitfast, elliptic cone, 4 noslip iterations): the pivot sweep finds
-    the swing stable there and the settings the other tasks use need no override.
+    the kit's scene options (1 ms, implicitfast, elliptic cone, 4 noslip iterations, impratio 1): the pivot
+    sweep finds the swing stable and converged there (0.25 and 0.5 ms turn it the same), so no override.
 Step limit
     300 policy steps (6 s at 50 Hz).
 Version history
@@ -86,8 +90,9 @@ GRIP_HEIGHT_NOISE_M = 0.003
 LIFT_RANGE_M = (0.15, 0.20)
 TILT_RANGE_RAD = (math.radians(60.0), math.radians(71.5))
 OPEN_MARGIN_M = 0.012
-# the kit's grasp depth (0.5 mm on a GelSight Mini) holds a can; a bottle tilted 70 deg with its water 6.5 cm
-# below the pads needs a firmer grip not to turn (0.7 mm, still half the Mini's 1.5 mm safe limit)
+# the kit's grasp depth (0.5 mm on a GelSight Mini) holds a can; a bottle tilted 70 deg with its water 8.5 cm
+# below the pads turns in it (0.2 N m against the strips' torsional friction): 0.9 mm holds it (pivot_stability.py:
+# "tight"), still 0.6 mm inside the Mini's 1.5 mm safe limit (0.54 mm against 0.8 on the GF225 and Xense WS)
 GRIP_DEPTH_FACTOR = 1.8
 REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright
 # the swing (controlled slip), per policy step
@@ -110,9 +115,10 @@ MAX_TILT_RAD = math.radians(15.0)
 
 
 def grasp_law(profile: SensorProfile) -> GraspLaw:
-    """The kit's tactile grasp, with a finger lead of 2.5 mm (the kit's 1.5 mm stalls short of 0.5 mm on a
-    0.3 kg bottle) and a 20 mm/s slow phase that pushes a bottle one pad reached first across to the other
-    (the camera's centre is off by up to 4 mm) in a quarter of UniVTAC's time."""
+    """The kit's tactile grasp to ``GRIP_DEPTH_FACTOR`` times its depth, with a finger lead of 4 mm (the kit's
+    1.5 mm stalls short of 0.5 mm on this bottle: the servo's squeeze is its lead times 20 N/mm) and a 20 mm/s
+    slow phase that pushes a bottle one pad reached first across to the other (the camera's centre is off by up
+    to 4 mm) in a third of UniVTAC's time."""
     return GraspLaw(threshold_mm=GRIP_DEPTH_FACTOR * grasp_depth_mm(profile), v_slow_m_s=0.02, max_lead_m=0.004)
 
 

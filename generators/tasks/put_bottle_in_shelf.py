@@ -90,6 +90,8 @@ GRIP_HEIGHT_NOISE_M = 0.003
 LIFT_RANGE_M = (0.15, 0.20)
 TILT_RANGE_RAD = (math.radians(60.0), math.radians(71.5))
 OPEN_MARGIN_M = 0.012
+# let go quickly: a bottle let go slowly starts to fall while the pads still touch it, a gel slip of a millimetre
+RELEASE_SPEED_M_S = 0.3
 # the kit's grasp depth (0.5 mm on a GelSight Mini) holds a can; a bottle tilted 70 deg with its water 8.5 cm
 # below the pads turns in it (0.2 N m against the strips' torsional friction): 0.9 mm holds it (pivot_stability.py:
 # "tight"), still 0.6 mm inside the Mini's 1.5 mm safe limit (0.54 mm against 0.8 on the GF225 and Xense WS)
@@ -268,7 +270,7 @@ class PutBottleInShelf(Task):
         yield from move_to(ctx, above, speed_m_s=0.45, primitive="carry")
         yield from move_to(ctx, above - [0.0, 0.0, RIM_HEIGHT_M + 0.03 - PLACE_CLEARANCE_M], speed_m_s=0.15,
                            primitive="place")
-        yield from open_to(ctx, ctx.target[7] + OPEN_MARGIN_M)
+        yield from open_to(ctx, ctx.target[7] + OPEN_MARGIN_M, speed_m_s=RELEASE_SPEED_M_S)
         yield from move_to(ctx, ctx.target[:3] + [0.0, 0.0, 0.05], speed_m_s=0.2)
         yield from wait(ctx, 0.1)
 

@@ -15,7 +15,7 @@ Objects (procedural; plausible real sizes)
     water: the turn loads the grasp little). Wall (fixed): a box 4 cm thick, 40 cm
     wide, 20 cm high, its face at x = 0.12 m. Ground: a plane, friction 0.8.
 Randomisation (seeded)
-    base face U(4, 6) cm from the wall (the turn about the base sweeps its rim 3.25 cm towards the wall), y
+    base face U(5, 7) cm from the wall (the turn about the base sweeps its rim 3.25 cm towards the wall), y
     U(-5, 5) cm, yaw U(-10, 10) deg (UniVTAC's +-1 cm, +-5 cm, +-10 deg); the camera's estimate of the grip
     point is off by U(-4, 4) mm along the bottle (the ends of a lying bottle are seen less well than its
     sides: across it, the fingers close centred, and a bottle one pad pushes across the table rolls on the gel)
@@ -64,7 +64,7 @@ from univtac_data.generators.tasks.put_bottle_in_shelf import grasp_law
 GRIP_FROM_BASE_M = 0.08  # where the expert grips, along the axis from the base (the bottle's origin)
 WALL_X_M = 0.12  # the wall's face, world x
 WALL_HALF_M = (0.02, 0.20, 0.10)
-GAP_RANGE_M = (0.04, 0.06)  # base face to the wall
+GAP_RANGE_M = (0.05, 0.07)  # base face to the wall: 5 cm is the success limit for the base centre
 Y_NOISE_M = 0.05
 YAW_NOISE_RAD = math.radians(10.0)
 SEEN_ERROR_M = 0.004

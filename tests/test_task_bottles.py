@@ -223,3 +223,13 @@ def test_recorded_episode_replays_validates_and_shows_the_correction(tmp_path, n
     report = validate(str(tmp_path / "ds"))
     failed = [c.rule for c in report.episodes[episode.meta.episode_id].checks if c.status == "fail"]
     assert not failed, failed
+
+
+def test_gel_slip_is_counted_from_the_end_of_a_controlled_slip():
+    from univtac_data.validators.rules_safety import slip_since_controlled
+
+    # slip_mm accumulates from contact onset: 0.2 before the swing, 3.0 during it, 3.4 after it, then a new
+    # contact (the drop to 0) counts from 0
+    slip = np.array([0.0, 0.2, 1.5, 3.0, 3.1, 3.4, 0.0, 0.5])
+    controlled = np.array([False, False, True, True, False, False, False, False])
+    assert slip_since_controlled(slip, controlled) == pytest.approx([0.0, 0.2, 0.0, 0.0, 0.1, 0.4, 0.0, 0.5])

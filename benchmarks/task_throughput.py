@@ -2,12 +2,12 @@
 without cameras, where the time goes (physics, the expert's touch readings, tactile model, cameras, writing),
 bytes per recorded frame, and ``evaluate``'s environment steps per CPU-second with cameras.
 
-    python benchmarks/task_throughput.py [--tasks all] [--seeds 3] [--passes 2]
+    python benchmarks/task_throughput.py [--tasks all] [--seeds 3] [--passes 2] [--name task_throughput]
 
 CPU seconds are the process's (``time.process_time``: all its threads, so a software-GL renderer that uses
 several threads is charged in full); stages are timed by wrapping the methods that do them. The quoted rate
-is the best pass, every pass recorded. Writes benchmarks/results/task_throughput.json and
-docs/figures/task_throughput.png.
+is the best pass, every pass recorded. Writes benchmarks/results/NAME.json and docs/figures/NAME.png
+(``--name``, default task_throughput).
 """
 
 from __future__ import annotations
@@ -106,6 +106,7 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--passes", type=int, default=2)
     parser.add_argument("--evaluate-rollouts", type=int, default=2)
+    parser.add_argument("--name", default="task_throughput", help="file name of the JSON and the chart")
     args = parser.parse_args()
     tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
     clock = StageClock()
@@ -139,8 +140,8 @@ def main() -> int:
     result = {"machine": machine(threads_used=1), "seeds": seeds, "passes": args.passes, "rows": best,
               "evaluate": evaluations}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "task_throughput.json").write_text(json.dumps(result, indent=1))
-    chart(best)
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=1))
+    chart(best, args.name)
     for row in best:
         print(f"{row['task']:16s} cameras {row['cameras']:12s} {row['frames_per_cpu_s']:7.1f} frames/s/core "
               f"{row['kib_per_frame']:6.0f} KiB/frame")
@@ -149,7 +150,7 @@ def main() -> int:
     return 0
 
 
-def chart(rows: list[dict[str, Any]]) -> None:
+def chart(rows: list[dict[str, Any]], name: str = "task_throughput") -> None:
     fig, ax = plt.subplots(figsize=(8, 0.9 + 0.6 * len(rows)))
     labels = [f"{r['task']}, cameras {r['cameras']}" for r in rows]
     left = [0.0] * len(rows)
@@ -166,7 +167,7 @@ def chart(rows: list[dict[str, Any]]) -> None:
     ax.set_title("Task demonstrations: where a recorded frame's time goes")
     fig.tight_layout()
     FIGURES.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURES / "task_throughput.png", dpi=120)
+    fig.savefig(FIGURES / f"{name}.png", dpi=120)
 
 
 if __name__ == "__main__":

@@ -51,15 +51,50 @@ def held_frames(ctx: EpisodeContext) -> np.ndarray:
     return (by_contact & have_contact) | (by_force & have_force)
 
 
+def controlled_slip_frames(ctx: EpisodeContext) -> np.ndarray:
+    """(T,) bool: frames of a task primitive that lets the object slip on purpose (the task's
+    ``controlled_slip_primitives``, e.g. Put Bottle in Shelf's swing); none for other episodes."""
+    none = np.zeros(ctx.n_frames, bool)
+    if ctx.meta.kind != "task" or "scene/primitive" not in ctx.arrays:
+        return none
+    from univtac_data.generators.tasks.registry import TASKS
+
+    task = TASKS.get(ctx.meta.name)
+    names = list(ctx.meta.primitive_names or [])
+    wanted = [names.index(p) for p in getattr(task, "controlled_slip_primitives", ()) if p in names]
+    if not wanted:
+        return none
+    return np.isin(ctx.arrays["scene/primitive"].astype(np.int64), wanted)
+
+
+def slip_since_controlled(slip: np.ndarray, controlled: np.ndarray) -> np.ndarray:
+    """(T,) slip_mm counted from the end of the last controlled-slip frame (slip_mm accumulates from contact
+    onset; a drop means a new contact, which counts from 0)."""
+    out = slip.copy()
+    base = 0.0
+    for k in range(len(slip)):
+        if controlled[k]:
+            base, out[k] = slip[k], 0.0
+            continue
+        if slip[k] < base:
+            base = 0.0
+        out[k] = slip[k] - base
+    return out
+
+
 @rule("safety.slip_while_held", "safety", threshold="max_slip_held_mm")
 def slip_while_held(ctx: EpisodeContext) -> list[Finding]:
     """While the object is held (contact on every pad, or every pad's normal force >= held_normal_force_n),
-    each pad's slip_mm stays at or below max_slip_held_mm."""
+    each pad's slip_mm stays at or below max_slip_held_mm. A task's controlled slip (its
+    ``controlled_slip_primitives``) is exempt, and the slip it leaves behind does not count afterwards."""
     held = held_frames(ctx)
     limit = ctx.config.max_slip_held_mm
+    controlled = controlled_slip_frames(ctx)
     out = []
     for pad in ctx.meta.pads:
         slip = ctx.array(f"tactile/{pad}/slip_mm").astype(np.float64)
+        if controlled.any():
+            slip = slip_since_controlled(slip, controlled)
         out.append(frame_finding(f"tactile/{pad}/slip_mm", held & ~(slip <= limit), slip,
                                  f"slip more than {limit} mm while the object is held", ctx.config.max_listed_frames,
                                  unit="mm"))

@@ -109,6 +109,9 @@ class Task(ABC):
     max_steps: ClassVar[int]  # policy steps before a rollout is cut off
     primitive_names: ClassVar[list[str]]
     max_in_hand_slip_mm: ClassVar[float] = 5.0  # safety: a held object may move this far in the hand, mm
+    # primitives that let the held object slip on the gel on purpose (a controlled slip, e.g. a swing in a
+    # loosened grasp): the validators' gel-slip rule does not count slip during them
+    controlled_slip_primitives: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, config: TaskConfig, profile: SensorProfile) -> None:
         self.config = config

@@ -5,11 +5,15 @@ from __future__ import annotations
 from univtac_data.generators.tasks.base import Task, TaskConfig
 from univtac_data.generators.tasks.grasp_classify import GraspClassify
 from univtac_data.generators.tasks.insert_hdmi import InsertHDMI
+from univtac_data.generators.tasks.lift_bottle import LiftBottle
 from univtac_data.generators.tasks.lift_can import LiftCan
 from univtac_data.generators.tasks.pull_out_key import PullOutKey
+from univtac_data.generators.tasks.put_bottle_in_shelf import PutBottleInShelf
 from univtac_data.schema.sensors import get_sensor
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan, GraspClassify, InsertHDMI, PullOutKey)}
+TASKS: dict[str, type[Task]] = {
+    cls.name: cls for cls in (LiftCan, GraspClassify, LiftBottle, PutBottleInShelf, InsertHDMI, PullOutKey)
+}
 TASK_NAMES: tuple[str, ...] = tuple(TASKS)
 
 

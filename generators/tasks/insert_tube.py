@@ -1,0 +1,210 @@
+"""Insert Tube: push a held 2.0 cm tube into a 2.05 cm hole in a surface tilted 30 deg.
+
+(prototype)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML, PadContact
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
+from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
+from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState
+from univtac_data.generators.tasks.holes import Bore, in_hole_frame, square_plate_xml
+from univtac_data.generators.tasks.motions import grasp_depth_mm, move_to, wait
+from univtac_data.schema.sensors import SensorProfile
+
+TUBE_RADIUS_M = 0.010
+TUBE_HALF_M = 0.06
+PAD_CONTACT = PadContact(stiffness=3e5, damping=1100.0)
+TUBE_MASS_KG = 0.06
+BORE = Bore(radius_m=0.01025, depth_m=0.05, chamfer_m=0.002)
+HOLE_CONTACT = ' solref="0.004 1" solimp="0.95 0.99 0.001"'
+TILT_RAD = math.radians(30.0)
+HOLE_XYZ_M = (0.0, 0.0, 0.10)
+PLATE_HALF_M = 0.045
+PLATE_OPENING_HALF_M = 0.016
+PLATE_THICKNESS_M = 0.012
+
+
+PROBE_START_M = 0.0015  # the tube's end this far above the entrance before each probe
+PROBE_TRAVEL_M = 0.005  # a probe ends 3.5 mm below the entrance: past the chamfer, in the bore proper
+PROBE_SPEED_M_S = 0.01
+BLOCKED_SHEAR_MM = 0.75  # axial shear during one probe that means the surface blocks the tube
+SEARCH_RADIUS_M = 0.003
+SEARCH_POINTS = 6
+INSERT_DEPTH_M = 0.035
+INSERT_SPEED_M_S = 0.02
+
+
+def search_ring() -> list[np.ndarray]:
+    """The retry points (hole frame x, y m, around the first attempt): a ring of ``SEARCH_POINTS`` at
+    ``SEARCH_RADIUS_M``, visited in order around it (neighbours are a short step apart)."""
+    return [SEARCH_RADIUS_M * np.array([math.cos(a), math.sin(a)])
+            for a in np.linspace(0.0, 2 * math.pi, SEARCH_POINTS, endpoint=False)]
+
+
+class PadShear:
+    """The pads' mean marker displacement since the expert started: the tangential motion (gel-pad frame, mm)
+    of the tube's surface point that sat at each pad's centre, as the tactile model computes the shear field
+    from it (``GripperSim._motion_since_onset``). ``axial_mm``: along the pads' y (the gripper's z), positive
+    when the tube slides up the fingers."""
+
+    def __init__(self, ctx: ExpertContext, body: str = "tube") -> None:
+        self._sim = ctx._session.sim
+        self._body = self._sim.model.body(body).id
+        self._anchor = {pad: self._frames(pad) for pad in ("left", "right")}
+
+    def _frames(self, pad: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        site = self._sim.model.site(f"{pad}_pad").id
+        data = self._sim.data
+        pad_pos, pad_mat = data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3).copy()
+        obj_pos, obj_mat = data.xpos[self._body].copy(), data.xmat[self._body].reshape(3, 3).copy()
+        return pad_pos, pad_mat, obj_pos, obj_mat
+
+    def tangential_mm(self, pad: str) -> np.ndarray:
+        """(2,) the pad's shear displacement now, pad x and y, mm."""
+        pad_pos0, _, obj_pos0, obj_mat0 = self._anchor[pad]
+        anchor = obj_mat0.T @ (pad_pos0 - obj_pos0)  # the tube's point under the pad centre at the start
+        pad_pos, pad_mat, obj_pos, obj_mat = self._frames(pad)
+        return (pad_mat.T @ (obj_pos + obj_mat @ anchor - pad_pos))[:2] * 1000.0
+
+    def axial_mm(self) -> float:
+        return float(np.mean([self.tangential_mm(pad)[1] for pad in ("left", "right")]))
+
+    def twist_rad(self, pad: str) -> float:
+        """The tube's turn about the pad's normal since the start, rad (the marker field's rotation)."""
+        _, pad_mat0, _, obj_mat0 = self._anchor[pad]
+        _, pad_mat, _, obj_mat = self._frames(pad)
+        turn = (pad_mat.T @ obj_mat) @ (pad_mat0.T @ obj_mat0).T
+        return float(math.atan2(turn[1, 0] - turn[0, 1], turn[0, 0] + turn[1, 1]))
+
+    def end_in_hand_m(self, half_length_m: float) -> np.ndarray:
+        """(3,) where the tube's lower end is in the gripper frame, m, as the pads tell it: the tube's centre
+        (at the gripper origin when the expert started) slid by the shear (left pad x is gripper +y, right
+        pad x is gripper -y, both pads' y is gripper +z), its axis turned about the pads' normal (left pad +z is
+        gripper +x, the right pad's is -x) by the marker field's rotation."""
+        left, right = self.tangential_mm("left"), self.tangential_mm("right")
+        centre = np.array([0.0, 0.5 * (left[0] - right[0]), 0.5 * (left[1] + right[1])]) / 1000.0
+        turn = 0.5 * (self.twist_rad("left") - self.twist_rad("right"))
+        return centre + half_length_m * np.array([0.0, math.sin(turn), -math.cos(turn)])
+
+
+def hole_quat() -> np.ndarray:
+    """The hole frame: world turned -30 deg about y (the axis leans toward -x)."""
+    return quat_from_axis_angle((0.0, 1.0, 0.0), -TILT_RAD)
+
+
+class InsertTube(Task):
+    name = "insert_tube"
+    gym_id = "univtac/InsertTube-v0"
+    max_steps = 300
+    primitive_names = ["move", "probe", "retry", "insert", "hold"]
+    # each miss slides the tube up the pads by about 0.8 mm (the probe stops on that shear); UniVTAC allows 30 mm
+    max_in_hand_slip_mm = 10.0
+
+    def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True) -> None:
+        super().__init__(config, profile)
+        self.corrections = corrections
+
+    def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
+        x = HOLE_XYZ_M[0] + float(rng.uniform(-0.005, 0.005))
+        y = HOLE_XYZ_M[1] + float(rng.uniform(-0.01, 0.01))
+        r, a = float(rng.uniform(0.001, 0.004)), float(rng.uniform(-math.pi, math.pi))
+        off = [r * math.cos(a), r * math.sin(a)]
+        return {"hole_m": [x, y, HOLE_XYZ_M[2]], "first_offset_m": off}
+
+    def objects(self) -> list[str]:
+        return ["tube"]
+
+    def hole_pose(self, layout: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(layout["hole_m"], float), hole_quat()
+
+    def start_pose(self, layout: dict[str, Any]) -> np.ndarray:
+        pos, quat = self.hole_pose(layout)
+        mat = quat_to_mat(quat)
+        dx, dy = layout["first_offset_m"]
+        centre = pos + mat @ np.array([dx, dy, TUBE_HALF_M + 0.002])
+        opening = 2 * TUBE_RADIUS_M - 2 * grasp_depth_mm(self.profile) / 1000
+        return np.array([*centre, *quat, opening])
+
+    def scene_xml(self, layout: dict[str, Any]) -> str:
+        pos, quat = self.hole_pose(layout)
+        start = self.start_pose(layout)
+        q = " ".join(f"{v:.9f}" for v in quat)
+        params = GripperParams(mount="welded")
+        return f"""<mujoco model="insert_tube">
+  <compiler angle="radian" autolimits="true"/>
+  {TASK_OPTION_XML}
+  <asset>{STAGE_ASSETS_XML}
+  </asset>
+  <worldbody>{stage_xml()}
+    <body name="hole" pos="{pos[0]} {pos[1]} {pos[2]}" quat="{q}">
+      {BORE.walls_xml("bore", attrs=HOLE_CONTACT)}
+      {square_plate_xml("surface", PLATE_HALF_M, PLATE_OPENING_HALF_M, PLATE_THICKNESS_M, "0.7 0.72 0.75 1", HOLE_CONTACT)}
+    </body>
+    <body name="tube" pos="{start[0]} {start[1]} {start[2]}" quat="{q}">
+      <freejoint name="tube_free"/>
+      <geom name="tube" type="cylinder" size="{TUBE_RADIUS_M} {TUBE_HALF_M}" mass="{TUBE_MASS_KG}"
+            rgba="0.85 0.9 0.95 1" friction="0.8 0.005 0.0001" condim="4"{HOLE_CONTACT}/>
+    </body>
+    {gripper_body_xml(self.profile, params, tuple(start[:3]))}
+  </worldbody>
+  <contact>{PAD_CONTACT.pair_xml("tube")}</contact>
+  <actuator>{gripper_actuator_xml(params)}</actuator>
+  <equality>{gripper_equality_xml(params)}</equality>
+</mujoco>"""
+
+    def expert(self, ctx: ExpertContext) -> Iterator[Step]:
+        pos, quat = self.hole_pose(ctx.layout)
+        mat = quat_to_mat(quat)
+        axis = mat[:, 2]
+        first = ctx.target[:3].copy()
+        offset = in_hole_frame(pos, quat, first)[:2]  # where the set-up aimed (the camera's estimate)
+        shear = PadShear(ctx)
+        points = [np.zeros(2)] + search_ring()
+        ctx.memory.update(attempts=0, inside=False)
+        for k, step in enumerate(points):
+            if k > 0:
+                if not (self.corrections and ctx.corrections_enabled):
+                    break
+                ctx.correction("search step after a miss", "axial shear: the tube slid up the pads by more than "
+                               f"{BLOCKED_SHEAR_MM} mm during the probe (blocked by the surface)",
+                               shear_mm=blocked_by, step_x_mm=step[0] * 1000, step_y_mm=step[1] * 1000,
+                               move_mm=float(np.linalg.norm(step - points[k - 1]) * 1000))
+            # aim the tube's end, wherever the pads say it has moved to in the hand
+            end = pos + mat @ np.array([*(offset + step), PROBE_START_M])
+            above = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
+            if k > 0:
+                yield from move_to(ctx, ctx.target[:3] + axis * 0.002, speed_m_s=0.04, primitive="retry")
+                yield from move_to(ctx, above + axis * 0.002, speed_m_s=0.04, primitive="retry")
+            yield from move_to(ctx, above, speed_m_s=0.04, primitive="probe")
+            ctx.memory["attempts"] = k + 1
+            before = shear.axial_mm()
+            blocked_by = 0.0
+            for probe in move_to(ctx, above - axis * PROBE_TRAVEL_M, speed_m_s=PROBE_SPEED_M_S, primitive="probe"):
+                yield probe
+                blocked_by = shear.axial_mm() - before
+                if blocked_by > BLOCKED_SHEAR_MM:
+                    break
+            if blocked_by <= BLOCKED_SHEAR_MM:
+                ctx.memory["inside"] = True
+                break
+        # push until the tube's end (the hand's travel less what the tube slid up the pads) is INSERT_DEPTH_M deep
+        end = pos + mat @ np.array([*in_hole_frame(pos, quat, ctx.target[:3] + mat @ shear.end_in_hand_m(TUBE_HALF_M))[:2],
+                                    -INSERT_DEPTH_M])
+        goal = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
+        yield from move_to(ctx, goal, speed_m_s=INSERT_SPEED_M_S, primitive="insert")
+        yield from wait(ctx, 0.2)
+
+    def success(self, state: TaskState) -> bool:
+        pos, quat = self.hole_pose(state.layout)
+        mat = quat_to_mat(state.objects["tube"][3:])
+        end = in_hole_frame(pos, quat, state.objects["tube"][:3] - mat[:, 2] * TUBE_HALF_M)
+        return bool(math.hypot(end[0], end[1]) < 0.005 and -end[2] >= 0.03)

@@ -43,6 +43,11 @@ INSERT_DEPTH_M = 0.035
 INSERT_SPEED_M_S = 0.02
 
 
+def grip_opening_m(profile: SensorProfile) -> float:
+    """The opening the set-up leaves the fingers at on the 2.0 cm tube: the kit's grasp depth on each pad."""
+    return 2 * TUBE_RADIUS_M - 2 * grasp_depth_mm(profile) / 1000
+
+
 def search_ring() -> list[np.ndarray]:
     """The retry points (hole frame x, y m, around the first attempt): a ring of ``SEARCH_POINTS`` at
     ``SEARCH_RADIUS_M``, visited in order around it (neighbours are a short step apart)."""
@@ -85,6 +90,14 @@ class PadShear:
         turn = (pad_mat.T @ obj_mat) @ (pad_mat0.T @ obj_mat0).T
         return float(math.atan2(turn[1, 0] - turn[0, 1], turn[0, 0] + turn[1, 1]))
 
+    def turn_rad(self) -> float:
+        """The tube's turn about the gripper's x (the left pad's normal) since the start, rad."""
+        return 0.5 * (self.twist_rad("left") - self.twist_rad("right"))
+
+    def rebase(self) -> None:
+        """Measure from now on (after the gripper turned around the tube on purpose)."""
+        self._anchor = {pad: self._frames(pad) for pad in ("left", "right")}
+
     def end_in_hand_m(self, half_length_m: float) -> np.ndarray:
         """(3,) where the tube's lower end is in the gripper frame, m, as the pads tell it: the tube's centre
         (at the gripper origin when the expert started) slid by the shear (left pad x is gripper +y, right
@@ -92,7 +105,7 @@ class PadShear:
         gripper +x, the right pad's is -x) by the marker field's rotation."""
         left, right = self.tangential_mm("left"), self.tangential_mm("right")
         centre = np.array([0.0, 0.5 * (left[0] - right[0]), 0.5 * (left[1] + right[1])]) / 1000.0
-        turn = 0.5 * (self.twist_rad("left") - self.twist_rad("right"))
+        turn = self.turn_rad()
         return centre + half_length_m * np.array([0.0, math.sin(turn), -math.cos(turn)])
 
 
@@ -131,8 +144,7 @@ class InsertTube(Task):
         mat = quat_to_mat(quat)
         dx, dy = layout["first_offset_m"]
         centre = pos + mat @ np.array([dx, dy, TUBE_HALF_M + 0.002])
-        opening = 2 * TUBE_RADIUS_M - 2 * grasp_depth_mm(self.profile) / 1000
-        return np.array([*centre, *quat, opening])
+        return np.array([*centre, *quat, grip_opening_m(self.profile)])
 
     def scene_xml(self, layout: dict[str, Any]) -> str:
         pos, quat = self.hole_pose(layout)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from univtac_data.generators.tasks.base import Task, TaskConfig
 from univtac_data.generators.tasks.grasp_classify import GraspClassify
+from univtac_data.generators.tasks.insert_hole import InsertHole
 from univtac_data.generators.tasks.insert_tube import InsertTube
 from univtac_data.generators.tasks.lift_can import LiftCan
 from univtac_data.schema.sensors import get_sensor
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan, GraspClassify, InsertTube)}
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (LiftCan, GraspClassify, InsertTube, InsertHole)}
 TASK_NAMES: tuple[str, ...] = tuple(TASKS)
 
 

@@ -21,6 +21,22 @@ from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mu
 
 
 @dataclass(frozen=True)
+class HoleContact:
+    """Contact of the tube with a hole's walls (MuJoCo solref as time constant and damping ratio, solimp,
+    margin): stiffer than MuJoCo's default (0.02 s), because a soft wall lets a pushed tube sink through
+    the rim (benchmarks/insertion_stability.py)."""
+
+    timeconst_s: float = 0.004
+    dampratio: float = 1.0
+    solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
+    margin_m: float = 0.0
+
+    def attrs(self) -> str:
+        imp = " ".join(f"{v:g}" for v in self.solimp)
+        return f' solref="{self.timeconst_s:g} {self.dampratio:g}" solimp="{imp}" margin="{self.margin_m:g}"'
+
+
+@dataclass(frozen=True)
 class Bore:
     """A round bore of ``radius_m`` (the walls' inscribed radius), ``depth_m`` long, open at both ends."""
 
@@ -80,6 +96,25 @@ class Bore:
                        f'{zc:.6f}" quat="{q}" size="{half_t:.6f} {half_w:.6f} {half_s:.6f}" rgba="{self.rgba}"{attrs}/>')
         return out
 
+    def convex_walls(self, prefix: str, n_pieces: int, attrs: str = "") -> tuple[str, str]:
+        """The bore below the chamfer as ``n_pieces`` convex mesh wedges (a convex decomposition of the ring:
+        each piece a prism on a trapezoid whose inner side is a chord at the bore's radius), for the stability
+        study; returns (asset MJCF, geom MJCF). The chamfer and the rim stay boxes."""
+        half = math.pi / n_pieces
+        r_in, r_out = self.radius_m / math.cos(half), self.radius_m + self.wall_thickness_m
+        top, bottom = -self.chamfer_m, -self.depth_m
+        corners = [(r_in * math.cos(-half), r_in * math.sin(-half)), (r_in * math.cos(half), r_in * math.sin(half)),
+                   (r_out * math.cos(half), r_out * math.sin(half)), (r_out * math.cos(-half), r_out * math.sin(-half))]
+        verts = " ".join(f"{x:.6f} {y:.6f} {z:.6f}" for z in (bottom, top) for x, y in corners)
+        asset = f'<mesh name="{prefix}_wedge" vertex="{verts}"/>'
+        geoms = [f'<geom name="{prefix}_piece{k}" type="mesh" mesh="{prefix}_wedge" euler="0 0 {2 * math.pi * k / n_pieces:.6f}" '
+                 f'rgba="{self.rgba}"{attrs}/>' for k in range(n_pieces)]
+        rest = []
+        if self.chamfer_m > 0:
+            rest = self._ring(prefix, "rim", self.radius_m + self.chamfer_m, [0.0] * self.n_walls, attrs,
+                              bottom=-self.chamfer_m) + self._chamfer(prefix, attrs)
+        return asset, "\n      ".join(geoms + rest)
+
     def radial_room_m(self, tube_radius_m: float) -> float:
         """How far a tube's axis may sit from the bore's axis inside the bore (the diametral clearance / 2)."""
         return self.radius_m - tube_radius_m
@@ -127,4 +162,4 @@ def tube_in_solid_mm(tube_pose: np.ndarray, tube_radius_m: float, half_length_m:
     return float(max(0.0, (reach - bore.radius_m).max()) * 1000.0)
 
 
-__all__ = ["Bore", "in_hole_frame", "square_plate_xml", "tube_axis_points", "tube_in_solid_mm"]
+__all__ = ["Bore", "HoleContact", "in_hole_frame", "square_plate_xml", "tube_axis_points", "tube_in_solid_mm"]

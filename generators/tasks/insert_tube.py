@@ -16,7 +16,7 @@ from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mu
 from univtac_data.generators.scene.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState
-from univtac_data.generators.tasks.holes import Bore, in_hole_frame, square_plate_xml
+from univtac_data.generators.tasks.holes import Bore, HoleContact, in_hole_frame, square_plate_xml
 from univtac_data.generators.tasks.motions import grasp_depth_mm, move_to, wait
 from univtac_data.schema.sensors import SensorProfile
 
@@ -25,7 +25,7 @@ TUBE_HALF_M = 0.06
 PAD_CONTACT = PadContact(stiffness=3e5, damping=1100.0)
 TUBE_MASS_KG = 0.06
 BORE = Bore(radius_m=0.01025, depth_m=0.05, chamfer_m=0.002)
-HOLE_CONTACT = ' solref="0.004 1" solimp="0.95 0.99 0.001"'
+HOLE_CONTACT = HoleContact().attrs()
 TILT_RAD = math.radians(30.0)
 HOLE_XYZ_M = (0.0, 0.0, 0.10)
 PLATE_HALF_M = 0.045
@@ -122,9 +122,16 @@ class InsertTube(Task):
     # each miss slides the tube up the pads by about 0.8 mm (the probe stops on that shear); UniVTAC allows 30 mm
     max_in_hand_slip_mm = 10.0
 
-    def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True) -> None:
+    def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True,
+                 hole_contact: HoleContact | None = None, collider: str = "boxes", solver: str = "Newton") -> None:
         super().__init__(config, profile)
-        self.corrections = corrections
+        self.corrections = corrections  # False: no retries after a miss (to measure what they are worth)
+        # the stability study's knobs (benchmarks/insertion_stability.py); the defaults are the task's
+        self.hole_contact = hole_contact or HoleContact()
+        if collider not in ("boxes", "convex"):
+            raise ValueError(f"collider must be 'boxes' or 'convex' (got {collider!r})")
+        self.collider = collider
+        self.solver = solver
 
     def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
         x = HOLE_XYZ_M[0] + float(rng.uniform(-0.005, 0.005))
@@ -151,20 +158,30 @@ class InsertTube(Task):
         start = self.start_pose(layout)
         q = " ".join(f"{v:.9f}" for v in quat)
         params = GripperParams(mount="welded")
+        attrs = self.hole_contact.attrs()
+        if self.collider == "convex":
+            assets, walls = BORE.convex_walls("bore", 48, attrs)
+        else:
+            assets, walls = "", BORE.walls_xml("bore", attrs=attrs)
+        options = TASK_OPTION_XML.replace('noslip_iterations="4"', f'noslip_iterations="4" solver="{self.solver}"')
         return f"""<mujoco model="insert_tube">
   <compiler angle="radian" autolimits="true"/>
-  {TASK_OPTION_XML}
+  {options}
   <asset>{STAGE_ASSETS_XML}
+    {assets}
   </asset>
   <worldbody>{stage_xml()}
     <body name="hole" pos="{pos[0]} {pos[1]} {pos[2]}" quat="{q}">
-      {BORE.walls_xml("bore", attrs=HOLE_CONTACT)}
-      {square_plate_xml("surface", PLATE_HALF_M, PLATE_OPENING_HALF_M, PLATE_THICKNESS_M, "0.7 0.72 0.75 1", HOLE_CONTACT)}
+      {walls}
+      {square_plate_xml("surface", PLATE_HALF_M, PLATE_OPENING_HALF_M, PLATE_THICKNESS_M, "0.7 0.72 0.75 1", attrs)}
+    </body>
+    <body name="stand" pos="{pos[0]} {pos[1]} {pos[2] / 2 - 0.03}">
+      <geom name="stand" type="box" size="0.03 0.03 {pos[2] / 2 - 0.03}" rgba="0.45 0.45 0.5 1" contype="0" conaffinity="0"/>
     </body>
     <body name="tube" pos="{start[0]} {start[1]} {start[2]}" quat="{q}">
       <freejoint name="tube_free"/>
       <geom name="tube" type="cylinder" size="{TUBE_RADIUS_M} {TUBE_HALF_M}" mass="{TUBE_MASS_KG}"
-            rgba="0.85 0.9 0.95 1" friction="0.8 0.005 0.0001" condim="4"{HOLE_CONTACT}/>
+            rgba="0.85 0.9 0.95 1" friction="0.8 0.005 0.0001" condim="4"{attrs}/>
     </body>
     {gripper_body_xml(self.profile, params, tuple(start[:3]))}
   </worldbody>

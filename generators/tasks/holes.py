@@ -138,28 +138,33 @@ def in_hole_frame(hole_pos: np.ndarray, hole_quat: np.ndarray, point_world: np.n
     return quat_to_mat(hole_quat).T @ (np.asarray(point_world, float) - np.asarray(hole_pos, float))
 
 
-def tube_axis_points(tube_pose: np.ndarray, half_length_m: float, n: int = 13) -> np.ndarray:
-    """(n, 3) points along a tube's axis from its -z end to its +z end, world m."""
+def tube_surface_points(tube_pose: np.ndarray, radius_m: float, half_length_m: float, n_around: int = 24,
+                        n_along: int = 25) -> np.ndarray:
+    """(n, 3) points on a tube's side and on the rims of its ends, world m."""
     mat = quat_to_mat(tube_pose[3:])
-    s = np.linspace(-half_length_m, half_length_m, n)
-    return tube_pose[:3] + s[:, None] * mat[:, 2]
+    a = np.linspace(0.0, 2 * math.pi, n_around, endpoint=False)
+    ring = radius_m * (np.cos(a)[:, None] * mat[:, 0] + np.sin(a)[:, None] * mat[:, 1])
+    s = np.linspace(-half_length_m, half_length_m, n_along)
+    return (tube_pose[:3] + s[:, None, None] * mat[:, 2] + ring[None, :, :]).reshape(-1, 3)
 
 
 def tube_in_solid_mm(tube_pose: np.ndarray, tube_radius_m: float, half_length_m: float, hole_pos: np.ndarray,
-                     hole_quat: np.ndarray, bore: Bore) -> float:
-    """How deep the tube sits in the bore's solid material, mm (0: nowhere; the tests' tunnelling check).
+                     hole_quat: np.ndarray, bore: Bore, mouth_m: float | None = None) -> float:
+    """How deep the tube's surface is inside the bore's walls, mm (0: nowhere; the tests' tunnelling check).
 
-    For the part of the tube inside the bore (below the entrance plane, above the bore's end), the tube's
-    surface may come no farther from the bore axis than the bore's radius, up to the polygon's corners:
-    a tube whose axis is ``d`` from the bore axis reaches ``d + r``; anything past ``radius`` is inside a wall.
-    A tube that went through the rim instead of the bore would show as a depth of several millimetres.
+    Points of the tube's side and end rims that lie along the bore, below its mouth (``mouth_m`` below the
+    entrance, default the chamfer: above it the walls recede or end) and above its far end, may be no farther
+    from the bore's axis than its radius (the polygon's corners are a little wider). A tube that went through
+    the rim or the surface beside the hole shows a depth of millimetres.
     """
-    pts = np.array([in_hole_frame(hole_pos, hole_quat, p) for p in tube_axis_points(tube_pose, half_length_m)])
-    inside = (pts[:, 2] < -tube_radius_m) & (pts[:, 2] > -bore.depth_m)  # clear of the entrance's rim
+    mouth = bore.chamfer_m if mouth_m is None else mouth_m
+    mat = quat_to_mat(hole_quat)
+    pts = (tube_surface_points(tube_pose, tube_radius_m, half_length_m) - np.asarray(hole_pos, float)) @ mat
+    inside = (pts[:, 2] < -mouth) & (pts[:, 2] > -bore.depth_m)
     if not inside.any():
         return 0.0
-    reach = np.hypot(pts[inside, 0], pts[inside, 1]) + tube_radius_m
+    reach = np.hypot(pts[inside, 0], pts[inside, 1])
     return float(max(0.0, (reach - bore.radius_m).max()) * 1000.0)
 
 
-__all__ = ["Bore", "HoleContact", "in_hole_frame", "square_plate_xml", "tube_axis_points", "tube_in_solid_mm"]
+__all__ = ["Bore", "HoleContact", "in_hole_frame", "square_plate_xml", "tube_in_solid_mm", "tube_surface_points"]

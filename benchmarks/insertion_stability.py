@@ -50,7 +50,7 @@ def settings() -> list[dict[str, Any]]:
     rows += [dict(TASK, group="timestep", timestep_s=dt) for dt in (0.00025, 0.0005, 0.002)]
     rows += [dict(TASK, group="margin", contact=replace(HoleContact(), margin_m=m)) for m in (0.0001, 0.0005)]
     rows += [dict(TASK, group="stiffness", contact=c) for c in
-             (MUJOCO_DEFAULT_CONTACT, HoleContact(timeconst_s=0.01), HoleContact(timeconst_s=0.002))]
+             (MUJOCO_DEFAULT_CONTACT, HoleContact(timeconst_s=0.01), HoleContact(timeconst_s=0.004))]
     rows += [dict(TASK, group="solver", solver=s) for s in ("CG", "PGS")]
     rows += [dict(TASK, group="collider", collider="convex")]
     return rows
@@ -113,7 +113,7 @@ def run_trial(row: dict[str, Any], seed: int) -> dict[str, Any]:
 def label(row: dict[str, Any]) -> str:
     c: HoleContact = row["contact"]
     if row["group"] == "task":
-        return "task (1 ms, boxes, 0.004 s, Newton)"
+        return "task (1 ms, boxes, solref 0.002 s, Newton)"
     if row["group"] == "timestep":
         return f"timestep {row['timestep_s'] * 1000:g} ms"
     if row["group"] == "margin":

@@ -15,7 +15,7 @@ Objects (procedural, boxes; sizes of a lab tube-rack block)
     with an opening around the bore. The bore: diameter 3.0 cm (5 mm radial clearance), 4.8 cm long, a ring
     of 16 box walls 5 mm thick (``holes.Bore``) turned 30 deg about world y, each wall cut where it meets the
     top face; its axis enters the top face at the cube's centre. Hole frame: origin at the entrance centre,
-    +z the bore's axis pointing out of the cube. Tube-wall contact: solref 0.004 s, solimp 0.95-0.99 (the
+    +z the bore's axis pointing out of the cube. Tube-wall contact: solref 0.002 s, solimp 0.95-0.99 (the
     Insert Tube stability study). Pad contact with 1 cm torsional friction (the grasp resists turning).
 Randomisation (seeded)
     cube centre x U(-2, 2) cm, y U(-3, 3) cm; lean toward +x or -x (p = 0.5); the camera's estimate of the
@@ -186,7 +186,7 @@ class InsertHole(Task):
     <body name="tube" pos="{start[0]} {start[1]} {start[2]}">
       <freejoint name="tube_free"/>
       <geom name="tube" type="cylinder" size="{TUBE_RADIUS_M} {TUBE_HALF_M}" mass="{TUBE_MASS_KG}"
-            rgba="0.85 0.9 0.95 1" friction="0.8 0.005 0.0001" condim="4"{HOLE_CONTACT}/>
+            rgba="0.85 0.9 0.95 1" condim="4"{HOLE_CONTACT}/>
     </body>
     {gripper_body_xml(self.profile, params, tuple(start[:3]))}
   </worldbody>

@@ -1,6 +1,46 @@
-"""Insert Tube: push a held 2.0 cm tube into a 2.05 cm hole in a surface tilted 30 deg.
+"""Insert Tube: push a held 2.0 cm tube into a 2.05 cm hole in a surface tilted 30 deg, finding the hole by touch.
 
-(prototype)
+Description
+    A plate tilted 30 deg (its normal leans toward -x) has a 2.05 cm hole bored along its normal; the
+    gripper holds a 2.0 cm tube on the hole's axis direction from the start (the set-up, not recorded,
+    grasps it at its centre and leaves its end 2 mm above the plate), but off the hole's centre by 1-4 mm
+    (the deliberate error of the first attempt). The expert probes along the axis; when the plate blocks
+    the tube, the tube slides up the pads and the pads' shear says so; the expert lifts, steps to the next
+    point of a search ring around the first attempt and probes again, until a probe goes through; then it
+    pushes the tube 3.5 cm deep.
+Objects (procedural, boxes; sizes of a lab test tube and a rack)
+    ``tube``: a cylinder of diameter 2.0 cm and length 12 cm, 60 g (a thick-walled tube part filled), origin
+    at its centre, local +z along its axis, held at its centre (pads' contact pair 3e5 /s^2: a firm grip on a
+    light tube). The hole (static, ``holes.Bore``): radius 10.25 mm (0.25 mm radial clearance, 2.05 cm), 5 cm
+    deep, a ring of 24 box walls 14 mm thick whose inner faces are a 24-gon with that inscribed radius (the
+    corners 0.09 mm wider), a 45 deg chamfer 2 mm wide at the entrance (the capture range: a tube within
+    about 2.3 mm of the axis slides in), in a 9 x 9 cm plate 12 mm thick; entrance centre at (0, 0, 0.10) m
+    moved by the layout. Hole frame: origin at the entrance centre, +z the hole's axis out of the plate (world
+    turned -30 deg about y), x and y across it. Tube-wall contact: solref 0.002 s, solimp 0.95-0.99, no
+    margin (chosen by ``benchmarks/insertion_stability.py``: peak penetration 0.14 mm, under the clearance).
+Randomisation (seeded)
+    hole x U(-5, 5) mm, y U(-10, 10) mm (UniVTAC's); the first attempt's offset from the hole's axis, in the
+    hole frame: a distance U(1, 4) mm in a uniform direction.
+Expert (closed loop; corrections in ``memory['corrections']``)
+    **probe**: from the tube's end 1.5 mm above the entrance, 5 mm along the axis at 1 cm/s; the signal is the
+    pads' axial shear, the mean marker displacement along the pads (the gripper's z) since the probe began
+    (``PadShear``: the tangential motion of the tube's surface under each pad centre, the quantity the tactile
+    model turns into the shear field): over 0.75 mm means the plate blocks the tube (sliding down the chamfer
+    stays under 0.6 mm). **retry** (the correction, after a blocked probe): lift 2 mm, move to the next point of a
+    ring of 6 points 3 mm around the first attempt (each a 3 mm step from the last), probe again; recorded with
+    the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
+    tube's end where the pads place it in the hand (their shear along and across the pads and the marker
+    field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **insert**:
+    push until the end is 3.5 cm deep, 2 cm/s; hold 0.2 s. ``corrections=False`` never retries.
+Success
+    the tube's lower end within 5 mm of the hole's axis (hole frame x, y) and at least 3 cm deep.
+Safety (per step)
+    pad indentation <= the sensor's safe limit; the tube moves at most 10 mm in the gripper frame (each miss
+    slides it about 0.8 mm up the pads; UniVTAC allows 30 mm).
+Step limit
+    300 policy steps (6 s at 50 Hz); the expert takes 110-270.
+Version history
+    v0: first version.
 """
 
 from __future__ import annotations
@@ -115,6 +155,7 @@ def hole_quat() -> np.ndarray:
 
 
 class InsertTube(Task):
+    __doc__ = __doc__
     name = "insert_tube"
     gym_id = "univtac/InsertTube-v0"
     max_steps = 300
@@ -181,7 +222,7 @@ class InsertTube(Task):
     <body name="tube" pos="{start[0]} {start[1]} {start[2]}" quat="{q}">
       <freejoint name="tube_free"/>
       <geom name="tube" type="cylinder" size="{TUBE_RADIUS_M} {TUBE_HALF_M}" mass="{TUBE_MASS_KG}"
-            rgba="0.85 0.9 0.95 1" friction="0.8 0.005 0.0001" condim="4"{attrs}/>
+            rgba="0.85 0.9 0.95 1" condim="4"{attrs}/>
     </body>
     {gripper_body_xml(self.profile, params, tuple(start[:3]))}
   </worldbody>

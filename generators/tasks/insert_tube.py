@@ -31,7 +31,8 @@ Expert (closed loop; corrections in ``memory['corrections']``)
     the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
     tube's end where the pads place it in the hand (their shear along and across the pads and the marker
     field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **insert**:
-    push until the end is 3.5 cm deep, 2 cm/s; hold 0.2 s. ``corrections=False`` never retries.
+    push until the end is 3.5 cm deep, 2 cm/s, once a probe went through (never on a blocked tube, which would
+    only slide up the pads); hold 0.2 s. ``corrections=False`` never retries.
 Success
     the tube's lower end within 5 mm of the hole's axis (hole frame x, y) and at least 3 cm deep.
 Safety (per step)
@@ -266,6 +267,9 @@ class InsertTube(Task):
             if blocked_by <= BLOCKED_SHEAR_MM:
                 ctx.memory["inside"] = True
                 break
+        if not ctx.memory["inside"]:  # every probe was blocked: pushing on would only drive the tube up the pads
+            yield from wait(ctx, 0.2)
+            return
         # push until the tube's end (the hand's travel less what the tube slid up the pads) is INSERT_DEPTH_M deep
         end = pos + mat @ np.array([*in_hole_frame(pos, quat, ctx.target[:3] + mat @ shear.end_in_hand_m(TUBE_HALF_M))[:2],
                                     -INSERT_DEPTH_M])

@@ -87,9 +87,11 @@ def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_oft
         for c in o.memory["corrections"]:
             assert c["what"] == "search step after a miss" and c["signal"].startswith("axial shear")
             assert c["shear_mm"] > 0.75 and 1.0 < c["move_mm"] <= 3.0 + 1e-6
-    # a large first offset is always a miss, a small one never needs a retry
+    # a large first offset is always a miss, a small one goes straight in
     assert all(o.memory["corrections"] for o in outcomes if o.first_offset_mm > 3.0)
-    assert not any(o.memory["corrections"] for o in outcomes if o.first_offset_mm < 1.5)
+    assert not any(o.memory["corrections"] for o in outcomes if o.first_offset_mm < 1.2)
+    near = [o for o in outcomes if o.first_offset_mm < 2.0]
+    assert sum(not o.memory["corrections"] for o in near) >= 0.8 * len(near)  # within the chamfer's reach
     seeds = range(30)
     task = InsertTube(FAST, PROFILE, corrections=False)
     without = [run(task, seed, corrections=True) for seed in seeds]

@@ -14,7 +14,7 @@ Objects (procedural, boxes; sizes of a lab test tube and a rack)
     light tube). The hole (static, ``holes.Bore``): radius 10.25 mm (0.25 mm radial clearance, 2.05 cm), 5 cm
     deep, a ring of 24 box walls 14 mm thick whose inner faces are a 24-gon with that inscribed radius (the
     corners 0.09 mm wider), a 45 deg chamfer 2 mm wide at the entrance (the capture range: a tube within
-    about 2.3 mm of the axis slides in), in a 9 x 9 cm plate 12 mm thick; entrance centre at (0, 0, 0.10) m
+    about 2 mm of the axis slides in), in a 9 x 9 cm plate 12 mm thick; entrance centre at (0, 0, 0.10) m
     moved by the layout. Hole frame: origin at the entrance centre, +z the hole's axis out of the plate (world
     turned -30 deg about y), x and y across it. Tube-wall contact: solref 0.002 s, solimp 0.95-0.99, no
     margin (chosen by ``benchmarks/insertion_stability.py``: peak penetration 0.14 mm, under the clearance).
@@ -26,8 +26,8 @@ Expert (closed loop; corrections in ``memory['corrections']``)
     pads' axial shear, the mean marker displacement along the pads (the gripper's z) since the probe began
     (``PadShear``: the tangential motion of the tube's surface under each pad centre, the quantity the tactile
     model turns into the shear field): over 0.75 mm means the plate blocks the tube (sliding down the chamfer
-    stays under 0.6 mm). **retry** (the correction, after a blocked probe): lift 2 mm, move to the next point of a
-    ring of 6 points 3 mm around the first attempt (each a 3 mm step from the last), probe again; recorded with
+    mostly stays under 0.6 mm). **retry** (the correction, after a blocked probe): lift 2 mm, move to the next
+    point of a ring of 6 points 3 mm around the first attempt (each a 3 mm step from the last), probe again; recorded with
     the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
     tube's end where the pads place it in the hand (their shear along and across the pads and the marker
     field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **insert**:

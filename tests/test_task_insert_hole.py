@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
@@ -20,6 +21,7 @@ from univtac_data.generators.tasks.insert_hole import BORE, MOUTH_M, InsertHole,
 from univtac_data.generators.tasks.insert_tube import TUBE_HALF_M, TUBE_RADIUS_M
 from univtac_data.generators.tasks.session import TaskSession
 from univtac_data.schema.sensors import get_sensor
+from univtac_data.validators import validate
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 FAST = TaskConfig(cameras=False)
@@ -97,7 +99,7 @@ def test_the_pads_find_the_lean_and_without_pivots_the_grasp_turns_too_far(outco
     assert ok_without <= ok_with - 0.5, (ok_with, ok_without)
 
 
-def test_replaying_recorded_actions_reproduces_the_insertion():
+def test_replaying_recorded_actions_reproduces_the_insertion_and_the_episode_validates(tmp_path):
     outcome = run_expert(TaskEpisodeSpec("insert_hole", 2, FAST))
     episode = outcome.episode
     assert outcome.success and outcome.safe and episode is not None and episode.meta.success
@@ -114,6 +116,12 @@ def test_replaying_recorded_actions_reproduces_the_insertion():
         assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 1e-3
     finally:
         session.close()
+    # the validators pass it, the pads' recorded slip included (the task's own max_pad_slip_mm)
+    writer = DatasetWriter.open(tmp_path / "ds")
+    writer.add(episode)
+    report = validate(str(tmp_path / "ds"))
+    failed = [c.rule for c in report.episodes[episode.meta.episode_id].checks if c.status == "fail"]
+    assert not failed, failed
 
 
 def test_success_needs_depth_centring_and_the_hole_axis():

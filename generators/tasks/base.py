@@ -108,6 +108,9 @@ class Task(ABC):
     max_steps: ClassVar[int]  # policy steps before a rollout is cut off
     primitive_names: ClassVar[list[str]]
     max_in_hand_slip_mm: ClassVar[float] = 5.0  # safety: a held object may move this far in the hand, mm
+    # the most a pad's recorded slip (tactile/{pad}/slip_mm) may reach while holding, mm, for a task whose expert
+    # slides the object in the grasp on purpose (insertion); None: the validators' default (max_slip_held_mm)
+    max_pad_slip_mm: ClassVar[float | None] = None
 
     def __init__(self, config: TaskConfig, profile: SensorProfile) -> None:
         self.config = config

@@ -39,7 +39,8 @@ Success
 Safety (per step)
     pad indentation <= the sensor's safe limit; the tube moves at most 20 mm in the gripper frame (it slides
     up the pads as the bore drags on it; UniVTAC allows 40 mm) and turns at most 15 deg in the grasp (the angle
-    between its axis and the gripper's: rotational slip).
+    between its axis and the gripper's: rotational slip). The validators hold the pads' recorded slip (the
+    sliding path, the pivot's turn of the grasp included: 13-18 mm) to 30 mm (``max_pad_slip_mm``).
 Step limit
     300 policy steps (6 s at 50 Hz); the expert takes 170-230.
 Version history
@@ -115,6 +116,8 @@ class InsertHole(Task):
     # the bore's wall drags on the tube as it is pushed 4.5 cm along it: it slides up to 10 mm up the pads
     # (UniVTAC stops at 40 mm)
     max_in_hand_slip_mm = 20.0
+    # the pads' recorded slip (tactile/{pad}/slip_mm) adds up the sliding, the pivot's turn of the grasp included
+    max_pad_slip_mm = 30.0
 
     def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True) -> None:
         super().__init__(config, profile)

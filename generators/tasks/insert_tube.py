@@ -37,7 +37,8 @@ Success
     the tube's lower end within 5 mm of the hole's axis (hole frame x, y) and at least 3 cm deep.
 Safety (per step)
     pad indentation <= the sensor's safe limit; the tube moves at most 10 mm in the gripper frame (each miss
-    slides it about 0.8 mm up the pads; UniVTAC allows 30 mm).
+    slides it about 0.8 mm up the pads; UniVTAC allows 30 mm). The validators hold the pads' recorded slip
+    (``tactile/{pad}/slip_mm``, the sliding path) to 20 mm (``max_pad_slip_mm``) instead of their 1 mm default.
 Step limit
     300 policy steps (6 s at 50 Hz); the expert takes 110-270.
 Version history
@@ -163,6 +164,9 @@ class InsertTube(Task):
     primitive_names = ["move", "probe", "retry", "insert", "hold"]
     # each miss slides the tube up the pads by about 0.8 mm (the probe stops on that shear); UniVTAC allows 30 mm
     max_in_hand_slip_mm = 10.0
+    # the pads' recorded slip (tactile/{pad}/slip_mm) adds up the sliding of every miss: 13 mm after
+    # six misses (seed 78)
+    max_pad_slip_mm = 20.0
 
     def __init__(self, config: TaskConfig, profile: SensorProfile, *, corrections: bool = True,
                  hole_contact: HoleContact | None = None, collider: str = "boxes", solver: str = "Newton") -> None:

@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML, PadContact
-from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_to_mat
 from univtac_data.generators.scene.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.tasks.base import ExpertContext, SafetyCheck, Step, Task, TaskConfig, TaskState, yaw_quat

@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML, PadContact
-from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
+from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_to_mat
 from univtac_data.generators.scene.gripper import GripperParams, gripper_actuator_xml, gripper_body_xml, gripper_equality_xml
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState
@@ -101,7 +101,8 @@ class PadShear:
     """The pads' mean marker displacement since the expert started: the tangential motion (gel-pad frame, mm)
     of the tube's surface point that sat at each pad's centre, as the tactile model computes the shear field
     from it (``GripperSim._motion_since_onset``). ``axial_mm``: along the pads' y (the gripper's z), positive
-    when the tube slides up the fingers."""
+    when the tube slides up the fingers. It reads the simulation through the expert's session: the kit's
+    ``touch()`` summarises the contact patch only, and a real sensor reads this from its markers."""
 
     def __init__(self, ctx: ExpertContext, body: str = "tube") -> None:
         self._sim = ctx._session.sim

@@ -112,7 +112,7 @@ class InsertHole(Task):
     name = "insert_hole"
     gym_id = "univtac/InsertHole-v0"
     max_steps = 300
-    primitive_names = ["move", "explore", "pivot", "push", "hold"]
+    primitive_names = ["explore", "pivot", "push", "hold"]
     # the bore's wall drags on the tube as it is pushed 4.5 cm along it: it slides up to 10 mm up the pads
     # (UniVTAC stops at 40 mm)
     max_in_hand_slip_mm = 20.0

@@ -40,7 +40,7 @@ Safety (per step)
     slides it about 0.8 mm up the pads; UniVTAC allows 30 mm). The validators hold the pads' recorded slip
     (``tactile/{pad}/slip_mm``, the sliding path) to 20 mm (``max_pad_slip_mm``) instead of their 1 mm default.
 Step limit
-    300 policy steps (6 s at 50 Hz); the expert takes 110-270.
+    300 policy steps (6 s at 50 Hz); the expert takes 110-245.
 Version history
     v0: first version.
 """
@@ -162,7 +162,7 @@ class InsertTube(Task):
     name = "insert_tube"
     gym_id = "univtac/InsertTube-v0"
     max_steps = 300
-    primitive_names = ["move", "probe", "retry", "insert", "hold"]
+    primitive_names = ["probe", "retry", "insert", "hold"]
     # each miss slides the tube up the pads by about 0.8 mm (the probe stops on that shear); UniVTAC allows 30 mm
     max_in_hand_slip_mm = 10.0
     # the pads' recorded slip (tactile/{pad}/slip_mm) adds up the sliding of every miss: 13 mm after

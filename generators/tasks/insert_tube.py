@@ -64,16 +64,17 @@ from univtac_data.schema.sensors import SensorProfile
 
 TUBE_RADIUS_M = 0.010
 TUBE_HALF_M = 0.06
-PAD_CONTACT = PadContact(stiffness=3e5, damping=1100.0)
 TUBE_MASS_KG = 0.06
-BORE = Bore(radius_m=0.01025, depth_m=0.05, chamfer_m=0.002)
+# MuJoCo scales a contact's stiffness by the bodies' effective mass: the kit's pair (1e5 /s^2, tuned on 60-300 g
+# cans held across the pad) let a pushed 25-60 g tube sink 4 mm into one pad and slide out; 3e5 holds it
+PAD_CONTACT = PadContact(stiffness=3e5, damping=1100.0)
+BORE = Bore(radius_m=0.01025, depth_m=0.05, chamfer_m=0.002)  # 2.05 cm: 0.25 mm radial clearance
 HOLE_CONTACT = HoleContact().attrs()
-TILT_RAD = math.radians(30.0)
-HOLE_XYZ_M = (0.0, 0.0, 0.10)
+TILT_RAD = math.radians(30.0)  # the plate's tilt (the hole's axis from the vertical)
+HOLE_XYZ_M = (0.0, 0.0, 0.10)  # entrance centre before the layout moves it, world m
 PLATE_HALF_M = 0.045
-PLATE_OPENING_HALF_M = 0.016
+PLATE_OPENING_HALF_M = 0.016  # the plate's square opening, filled to the bore by the ring's walls
 PLATE_THICKNESS_M = 0.012
-
 
 PROBE_START_M = 0.0015  # the tube's end this far above the entrance before each probe
 PROBE_TRAVEL_M = 0.005  # a probe ends 3.5 mm below the entrance: past the chamfer, in the bore proper

@@ -82,13 +82,26 @@ def slip_since_controlled(slip: np.ndarray, controlled: np.ndarray) -> np.ndarra
     return out
 
 
+def _slip_limit_mm(ctx: EpisodeContext) -> float:
+    """max_slip_held_mm, or a registered task's own ``max_pad_slip_mm`` when it declares one (an insertion
+    expert slides the object in the grasp on purpose)."""
+    if ctx.meta.kind == "task":
+        from univtac_data.generators.tasks.registry import TASKS
+
+        task = TASKS.get(ctx.meta.name)
+        if task is not None and task.max_pad_slip_mm is not None:
+            return float(task.max_pad_slip_mm)
+    return ctx.config.max_slip_held_mm
+
+
 @rule("safety.slip_while_held", "safety", threshold="max_slip_held_mm")
 def slip_while_held(ctx: EpisodeContext) -> list[Finding]:
     """While the object is held (contact on every pad, or every pad's normal force >= held_normal_force_n),
-    each pad's slip_mm stays at or below max_slip_held_mm. A task's controlled slip (its
-    ``controlled_slip_primitives``) is exempt, and the slip it leaves behind does not count afterwards."""
+    each pad's slip_mm stays at or below max_slip_held_mm (a task's max_pad_slip_mm, if it declares one). A
+    task's controlled slip (its ``controlled_slip_primitives``) is exempt, and the slip it leaves behind does not
+    count afterwards."""
     held = held_frames(ctx)
-    limit = ctx.config.max_slip_held_mm
+    limit = _slip_limit_mm(ctx)
     controlled = controlled_slip_frames(ctx)
     out = []
     for pad in ctx.meta.pads:

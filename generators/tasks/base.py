@@ -112,6 +112,9 @@ class Task(ABC):
     # primitives that let the held object slip on the gel on purpose (a controlled slip, e.g. a swing in a
     # loosened grasp): the validators' gel-slip rule does not count slip during them
     controlled_slip_primitives: ClassVar[tuple[str, ...]] = ()
+    # the most a pad's recorded slip (tactile/{pad}/slip_mm) may reach while holding, mm, for a task whose expert
+    # slides the object in the grasp on purpose (insertion); None: the validators' default (max_slip_held_mm)
+    max_pad_slip_mm: ClassVar[float | None] = None
 
     def __init__(self, config: TaskConfig, profile: SensorProfile) -> None:
         self.config = config

@@ -1,0 +1,232 @@
+"""Where does MuJoCo's contact fail at Insert Tube's clearance? A sweep of the timestep, the contact margin,
+the wall contact's stiffness and the solver, and the collider type (boxes, convex mesh pieces, SDF), on a
+2.0 cm tube pushed into the task's 2.05 cm bore (0.25 mm radial clearance, 2 mm chamfer).
+
+A trial: the Insert Tube scene, the tube held by the welded gripper with its end 2 mm above the entrance,
+off the bore's axis by U(0, 1.5) mm in a random direction (inside the chamfer's reach), pushed 3.7 cm
+along the axis at 2 cm/s, held 0.2 s. Recorded per trial: inserted (the task's success: the end 3 cm deep
+and within 5 mm of the axis), peak penetration (the deepest tube-wall contact, MuJoCo's ``contact.dist``),
+tunnelling (the tube's surface more than 1 mm inside solid material, ``holes.tube_in_solid_mm``),
+jamming (stuck above 3 cm depth while the hand went on: the tube slid more than 3 mm up the pads), any
+non-finite state; and the wall time of ``mj_step`` alone, per physics step.
+
+    python benchmarks/insertion_stability.py [--trials 8]
+
+Writes benchmarks/results/insertion_stability.json and docs/figures/insertion_stability.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import replace
+from typing import Any
+
+import matplotlib
+import mujoco
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import FIGURES, RESULTS, machine  # noqa: E402
+
+from univtac_data.generators.scene.geometry import quat_to_mat  # noqa: E402
+from univtac_data.generators.tasks.base import ExpertContext, TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.holes import HoleContact, tube_in_solid_mm  # noqa: E402
+from univtac_data.generators.tasks.insert_tube import BORE, TUBE_HALF_M, TUBE_RADIUS_M, InsertTube  # noqa: E402
+from univtac_data.generators.tasks.motions import move_to, wait  # noqa: E402
+from univtac_data.generators.tasks.session import TaskSession  # noqa: E402
+from univtac_data.schema.sensors import get_sensor  # noqa: E402
+
+TASK = {"timestep_s": 0.001, "contact": HoleContact(), "collider": "boxes", "solver": "Newton"}
+MUJOCO_DEFAULT_CONTACT = HoleContact(timeconst_s=0.02, solimp=(0.9, 0.95, 0.001))
+
+
+def settings() -> list[dict[str, Any]]:
+    """One change from the task's settings at a time (the task's row first)."""
+    rows = [dict(TASK, group="task")]
+    rows += [dict(TASK, group="timestep", timestep_s=dt) for dt in (0.00025, 0.0005, 0.002)]
+    rows += [dict(TASK, group="margin", contact=replace(HoleContact(), margin_m=m)) for m in (0.0001, 0.0005)]
+    rows += [dict(TASK, group="stiffness", contact=c) for c in
+             (MUJOCO_DEFAULT_CONTACT, HoleContact(timeconst_s=0.01), HoleContact(timeconst_s=0.004))]
+    rows += [dict(TASK, group="solver", solver=s) for s in ("CG", "PGS")]
+    rows += [dict(TASK, group="collider", collider="convex")]
+    return rows
+
+
+class Trial(InsertTube):
+    """Insert Tube with a small first offset (within the chamfer's reach) and a straight push."""
+
+    def sample_layout(self, rng: np.random.Generator) -> dict[str, Any]:
+        layout = super().sample_layout(rng)
+        r, a = float(rng.uniform(0.0, 0.0015)), float(rng.uniform(-math.pi, math.pi))
+        layout["first_offset_m"] = [r * math.cos(a), r * math.sin(a)]
+        return layout
+
+
+def run_trial(row: dict[str, Any], seed: int) -> dict[str, Any]:
+    config = TaskConfig(cameras=False, timestep_s=row["timestep_s"])
+    task = Trial(config, get_sensor("gelsight_mini"), hole_contact=row["contact"], collider=row["collider"],
+                 solver=row["solver"])
+    session = TaskSession(task)
+    state = session.reset(seed)
+    sim = session.sim
+    model, data = sim.model, sim.data
+    tube_geom = model.geom("tube").id
+    wall_geoms = {g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name == "hole"}
+    pos, quat = task.hole_pose(session.layout)
+    axis = quat_to_mat(quat)[:, 2]
+    ctx = ExpertContext(session, session.rng)
+    original, step_time = mujoco.mj_step, [0.0, 0]
+
+    def timed_step(m: Any, d: Any) -> None:
+        t0 = time.perf_counter()
+        original(m, d)
+        step_time[0] += time.perf_counter() - t0
+        step_time[1] += 1
+
+    penetration, tunnel, finite = 0.0, 0.0, True
+    mujoco.mj_step = timed_step
+    try:
+        script = list(move_to(ctx, ctx.target[:3] - axis * 0.039, speed_m_s=0.02, primitive="insert"))
+        script += list(wait(ctx, 0.2))
+        for step in script:
+            state = session.step(step.action, step.primitive)
+            if not sim.finite():
+                finite = False
+                break
+            for c in data.contact[:data.ncon]:
+                if (c.geom1 == tube_geom and c.geom2 in wall_geoms) or (c.geom2 == tube_geom and c.geom1 in wall_geoms):
+                    penetration = max(penetration, -float(c.dist) * 1000.0)
+            tunnel = max(tunnel, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
+    finally:
+        mujoco.mj_step = original
+        session.close()
+    inserted = finite and task.success(state)
+    jammed = finite and not inserted and session.max_in_hand_slip_mm > 3.0
+    return {"inserted": bool(inserted), "peak_penetration_mm": penetration, "tunnelled": bool(tunnel > 1.0),
+            "jammed": bool(jammed), "finite": finite, "us_per_step": 1e6 * step_time[0] / max(1, step_time[1])}
+
+
+def label(row: dict[str, Any]) -> str:
+    c: HoleContact = row["contact"]
+    if row["group"] == "task":
+        return "task (1 ms, boxes, solref 0.002 s, Newton)"
+    if row["group"] == "timestep":
+        return f"timestep {row['timestep_s'] * 1000:g} ms"
+    if row["group"] == "margin":
+        return f"margin {c.margin_m * 1000:g} mm"
+    if row["group"] == "stiffness":
+        return f"solref {c.timeconst_s:g} s" + (" (MuJoCo default)" if c == MUJOCO_DEFAULT_CONTACT else "")
+    if row["group"] == "solver":
+        return f"solver {row['solver']}"
+    return f"collider {row['collider']} ({'48 convex mesh pieces' if row['collider'] == 'convex' else '24 boxes'})"
+
+
+def sdf_cost(steps: int = 1000) -> dict[str, Any]:
+    """What an SDF collider costs: MuJoCo's wheel ships analytic SDF plugins only (bolt, nut, gear, torus,
+    bowl; no mesh SDF), and the only round bore among them is the threaded nut, at its own scale (bore
+    radius between 0.25 and 0.30 m). A cylinder resting in it gives the per-step cost of SDF contact."""
+    xml = """<mujoco><extension><plugin plugin="mujoco.sdf.nut"><instance name="nut">
+      <config key="radius" value="0.26"/></instance></plugin></extension>
+      <asset><mesh name="nut"><plugin instance="nut"/></mesh></asset>
+      <option sdf_iterations="10" sdf_initpoints="40"/>
+      <worldbody><geom type="sdf" name="nut" mesh="nut"><plugin instance="nut"/></geom>
+      <body pos="0 0 0.5"><freejoint/><geom type="cylinder" size="0.3 0.3" mass="0.06"/></body></worldbody></mujoco>"""
+    box_xml = """<mujoco><worldbody><geom type="box" size="0.5 0.5 0.05"/>
+      <body pos="0 0 0.5"><freejoint/><geom type="cylinder" size="0.3 0.3" mass="0.06"/></body></worldbody></mujoco>"""
+    out = {}
+    for name, text in (("sdf_nut", xml), ("box", box_xml)):
+        model = mujoco.MjModel.from_xml_string(text)
+        data = mujoco.MjData(model)
+        for _ in range(300):  # settle into contact
+            mujoco.mj_step(model, data)
+        t0 = time.perf_counter()
+        contacts = 0
+        for _ in range(steps):
+            mujoco.mj_step(model, data)
+            contacts = max(contacts, data.ncon)
+        out[name] = {"us_per_step": 1e6 * (time.perf_counter() - t0) / steps, "contacts": contacts}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--trials", type=int, default=8)
+    parser.add_argument("--plot-only", action="store_true", help="redraw the chart from the stored JSON")
+    args = parser.parse_args()
+    if args.plot_only:
+        stored = json.loads((RESULTS / "insertion_stability.json").read_text())
+        plot(stored["rows"], stored["sdf"])
+        return
+    info = machine(threads_used=1)
+    rows = []
+    for row in settings():
+        trials = [run_trial(row, seed) for seed in range(args.trials)]
+        summary = {
+            "label": label(row), "group": row["group"], "timestep_s": row["timestep_s"], "collider": row["collider"],
+            "solver": row["solver"], "contact": {"timeconst_s": row["contact"].timeconst_s,
+                                                 "solimp": list(row["contact"].solimp),
+                                                 "margin_m": row["contact"].margin_m},
+            "trials": len(trials), "inserted": sum(t["inserted"] for t in trials) / len(trials),
+            "jammed": sum(t["jammed"] for t in trials) / len(trials),
+            "tunnelled": sum(t["tunnelled"] for t in trials) / len(trials),
+            "non_finite": sum(not t["finite"] for t in trials) / len(trials),
+            "peak_penetration_mm": max(t["peak_penetration_mm"] for t in trials),
+            "us_per_step": float(np.median([t["us_per_step"] for t in trials])),
+        }
+        summary["breaks"] = bool(summary["inserted"] < 0.9 or summary["tunnelled"] > 0 or summary["non_finite"] > 0
+                                 or summary["peak_penetration_mm"] > 0.25)
+        rows.append(summary)
+        print(f"{summary['label']:40s} inserted {summary['inserted']:.0%} jammed {summary['jammed']:.0%} "
+              f"tunnelled {summary['tunnelled']:.0%} non-finite {summary['non_finite']:.0%} peak penetration "
+              f"{summary['peak_penetration_mm']:.3f} mm, {summary['us_per_step']:.0f} us/step"
+              f"{'  <- breaks' if summary['breaks'] else ''}", flush=True)
+    sdf = sdf_cost()
+    print(f"SDF nut vs box, one cylinder in contact: {sdf['sdf_nut']['us_per_step']:.0f} vs "
+          f"{sdf['box']['us_per_step']:.0f} us/step")
+    result = {"machine": info, "trials_per_setting": args.trials, "clearance_radial_mm": 0.25,
+              "breaks_when": "insertion < 90 %, any tunnelling or non-finite state, or peak penetration > 0.25 mm "
+                             "(the radial clearance)", "rows": rows, "sdf": sdf}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "insertion_stability.json").write_text(json.dumps(result, indent=1))
+    plot(rows, sdf)
+
+
+def plot(rows: list[dict[str, Any]], sdf: dict[str, Any]) -> None:
+    fig, axes = plt.subplots(1, 4, figsize=(18, 5))
+    colours = {"task": "black", "timestep": "tab:blue", "margin": "tab:orange", "stiffness": "tab:green",
+               "solver": "tab:purple", "collider": "tab:brown"}
+    panels = (("inserted", "insertion success"), ("peak_penetration_mm", "peak penetration, mm"),
+              ("jammed", "jammed"), ("tunnelled", "tunnelled (tube surface > 1 mm in a wall)"))
+    for ax, (key, title) in zip(axes, panels):
+        for group, colour in colours.items():
+            mine = [r for r in rows if r["group"] == group]
+            ax.scatter([r["us_per_step"] for r in mine], [r[key] for r in mine], color=colour, s=55, label=group,
+                       marker="o")
+            for r in mine:
+                if r["breaks"] or group == "task":
+                    ax.scatter(r["us_per_step"], r[key], facecolors="none", edgecolors="red" if r["breaks"] else
+                               "black", s=160, linewidths=1.2)
+                    ax.annotate(r["label"], (r["us_per_step"], r[key]), fontsize=7, xytext=(4, -10),
+                                textcoords="offset points")
+        ax.axvline(sdf["sdf_nut"]["us_per_step"], color="grey", ls=":", lw=1)
+        ax.text(sdf["sdf_nut"]["us_per_step"], ax.get_ylim()[1] * 0.5, " SDF contact alone\n (threaded nut)",
+                fontsize=7, color="grey", rotation=90, va="center")
+        ax.set_xscale("log")
+        ax.set_xlabel("mj_step wall time, us per physics step (log)")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[1].axhline(0.25, color="red", lw=0.8, ls="--", label="radial clearance")
+    axes[1].legend(fontsize=7, loc="upper left")
+    fig.suptitle("Insert Tube, 2.0 cm tube into a 2.05 cm bore: one setting changed at a time from the task's "
+                 "(red ring = breaks: < 90 % inserted, tunnelling, or penetration over the clearance)", fontsize=10)
+    fig.tight_layout()
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / "insertion_stability.png", dpi=110)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,167 @@
+"""Insert Tube: the expert gets the 2.0 cm tube into the 2.05 cm bore on 100 seeds, safely, without the tube ever
+passing through solid material; the first attempt misses by design and the pads' shear is what finds the
+hole; replaying the recorded actions reproduces the insertion."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, replace
+from typing import Any
+
+import mujoco
+import numpy as np
+import pytest
+
+from univtac_data import DatasetWriter
+from univtac_data.generators.scene.geometry import quat_to_mat
+from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
+from univtac_data.generators.tasks.holes import Bore, tube_in_solid_mm
+from univtac_data.generators.tasks.insert_tube import BORE, TUBE_HALF_M, TUBE_RADIUS_M, InsertTube
+from univtac_data.generators.tasks.session import TaskSession
+from univtac_data.schema.sensors import get_sensor
+from univtac_data.validators import validate
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+FAST = TaskConfig(cameras=False)
+PROFILE = get_sensor("gelsight_mini")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    seed: int
+    success: bool
+    safe: bool
+    violation: str | None
+    steps: int
+    in_solid_mm: float  # deepest the tube's surface went into the bore's walls over the episode
+    memory: dict[str, Any]
+    first_offset_mm: float
+
+
+def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
+    """The expert from ``seed``, checking every step's tube pose against the hole's geometry."""
+    session = TaskSession(task)
+    try:
+        state = session.reset(seed)
+        ctx = ExpertContext(session, session.rng)
+        ctx.corrections_enabled = corrections
+        pos, quat = task.hole_pose(session.layout)
+        deepest = 0.0
+        for step in task.expert(ctx):
+            if session.steps >= task.max_steps:
+                break
+            state = session.step(step.action, step.primitive)
+            deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
+        return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
+                       dict(ctx.memory), 1000 * float(np.hypot(*session.layout["first_offset_m"])))
+    finally:
+        session.close()
+
+
+@pytest.fixture(scope="module")
+def outcomes() -> list[Outcome]:
+    task = InsertTube(FAST, PROFILE)
+    return [run(task, seed) for seed in range(100)]
+
+
+@pytest.mark.slow
+def test_expert_inserts_on_100_seeds_safely_and_never_through_solid(outcomes: list[Outcome]):
+    successes = sum(o.success for o in outcomes)
+    retried = [o for o in outcomes if o.memory["corrections"]]
+    print(f"insert_tube expert: success {successes}/100, safe {sum(o.safe for o in outcomes)}, retries on "
+          f"{len(retried)} seeds (at most {max(len(o.memory['corrections']) for o in outcomes)}), steps max "
+          f"{max(o.steps for o in outcomes)}, deepest in a wall {max(o.in_solid_mm for o in outcomes):.2f} mm")
+    assert successes >= 90, [o.seed for o in outcomes if not o.success]
+    assert all(o.safe for o in outcomes), [(o.seed, o.violation) for o in outcomes if not o.safe]
+    assert max(o.steps for o in outcomes) < InsertTube.max_steps
+    # no tunnelling: the tube's surface never goes deeper into a wall than contact softness allows (the
+    # stability study's peak penetration), far from the 10 mm a tube through the rim would show
+    assert max(o.in_solid_mm for o in outcomes) < 0.6, max(o.in_solid_mm for o in outcomes)
+
+
+@pytest.mark.slow
+def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_often(outcomes: list[Outcome]):
+    retried = [o for o in outcomes if o.memory["corrections"]]
+    assert len(retried) >= 30  # a first attempt 1-4 mm off misses the chamfer's reach often
+    for o in retried:
+        for c in o.memory["corrections"]:
+            assert c["what"] == "search step after a miss" and c["signal"].startswith("axial shear")
+            assert c["shear_mm"] > 0.75 and 1.0 < c["move_mm"] <= 3.0 + 1e-6
+    # a large first offset is always a miss, a small one goes straight in
+    assert all(o.memory["corrections"] for o in outcomes if o.first_offset_mm > 3.0)
+    assert not any(o.memory["corrections"] for o in outcomes if o.first_offset_mm < 1.2)
+    near = [o for o in outcomes if o.first_offset_mm < 2.0]
+    assert sum(not o.memory["corrections"] for o in near) >= 0.8 * len(near)  # within the chamfer's reach
+    seeds = range(30)
+    task = InsertTube(FAST, PROFILE, corrections=False)
+    without = [run(task, seed, corrections=True) for seed in seeds]
+    assert not any(o.memory["corrections"] for o in without)
+    ok_with = sum(outcomes[s].success and outcomes[s].safe for s in seeds) / len(seeds)
+    ok_without = sum(o.success and o.safe for o in without) / len(seeds)
+    print(f"insert_tube seeds 0-29: success (and safe) {ok_with:.0%} with retries, {ok_without:.0%} without")
+    assert ok_without <= ok_with - 0.25, (ok_with, ok_without)
+
+
+def test_replaying_recorded_actions_reproduces_the_insertion_and_the_episode_validates(tmp_path):
+    outcome = run_expert(TaskEpisodeSpec("insert_tube", 78, FAST))
+    episode = outcome.episode
+    assert outcome.success and outcome.safe and episode is not None and episode.meta.success
+    assert len(outcome.memory["corrections"]) == 6, "seed 78 misses six times: the most sliding in the grasp"
+    names = episode.meta.primitive_names
+    used = {names[i] for i in np.unique(episode["scene/primitive"]) if i >= 0}
+    assert {"probe", "retry", "insert"} <= used
+    task = InsertTube(FAST, PROFILE)
+    session = TaskSession(task)
+    try:
+        session.reset(episode.meta.seed)
+        for action in episode["robot/action"][:-1]:
+            state = session.step(action)
+        assert task.success(state)
+        assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 1e-3
+    finally:
+        session.close()
+    # the validators pass it, the pads' recorded slip included (the task's own max_pad_slip_mm)
+    writer = DatasetWriter.open(tmp_path / "ds")
+    writer.add(episode)
+    report = validate(str(tmp_path / "ds"))
+    failed = [c.rule for c in report.episodes[episode.meta.episode_id].checks if c.status == "fail"]
+    assert not failed, failed
+
+
+def test_the_bore_is_round_to_its_radius_and_a_tube_through_the_rim_is_caught():
+    bore = Bore(radius_m=0.01025, depth_m=0.05, chamfer_m=0.002)
+    model = mujoco.MjModel.from_xml_string(
+        f'<mujoco><compiler angle="radian"/><worldbody><body>{bore.walls_xml("b")}</body></worldbody></mujoco>')
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    hit = np.zeros(1, np.int32)
+    for z in (-0.004, -0.03):  # below the chamfer: every direction meets a wall between 10.25 and 10.34 mm
+        dists = [mujoco.mj_ray(model, data, np.array([0, 0, z]), np.array([math.cos(a), math.sin(a), 0.0]), None, 1,
+                               -1, hit) for a in np.linspace(0, 2 * math.pi, 73)]
+        assert 0.01025 - 1e-6 <= min(dists) and max(dists) <= 0.01025 / math.cos(math.pi / bore.n_walls) + 1e-6
+    centred = np.array([0, 0, -0.03 + TUBE_HALF_M, 1, 0, 0, 0])
+    ident = np.array([1.0, 0, 0, 0])
+    assert tube_in_solid_mm(centred, TUBE_RADIUS_M, TUBE_HALF_M, np.zeros(3), ident, bore) == 0.0
+    through_rim = centred + np.array([0.004, 0, 0, 0, 0, 0, 0])
+    assert tube_in_solid_mm(through_rim, TUBE_RADIUS_M, TUBE_HALF_M, np.zeros(3), ident, bore) == pytest.approx(3.75)
+
+
+def test_success_needs_the_tube_3_cm_deep_and_centred():
+    task = InsertTube(FAST, PROFILE)
+    session = TaskSession(task)
+    try:
+        state = session.reset(0)
+        assert not task.success(state)  # it starts above the hole
+        pos, quat = task.hole_pose(session.layout)
+        mat = quat_to_mat(quat)
+
+        def tube_at(x_mm: float, depth_mm: float) -> Any:
+            centre = pos + mat @ np.array([x_mm / 1000, 0.0, TUBE_HALF_M - depth_mm / 1000])
+            return replace(state, objects={"tube": np.array([*centre, *quat])})
+
+        assert task.success(tube_at(0.0, 31.0)) and task.success(tube_at(4.9, 31.0))
+        assert not task.success(tube_at(0.0, 29.0)) and not task.success(tube_at(5.1, 31.0))
+    finally:
+        session.close()

@@ -34,6 +34,9 @@ class PadContact:
 
 
 # options every task scene uses (scenes-and-tasks.md, measured): elliptic cone + noslip, implicit integrator;
-# no shadow maps: software GL spends 130-220 ms a 480 x 270 frame on them, 8 ms without
+# no shadow maps: software GL spends 130-220 ms a 480 x 270 frame on them, 8 ms without; no multisampling:
+# software GL's 4x (MuJoCo's default, and 1 or 2 cost the same) takes 14-20 ms a 480 x 270 camera frame, 5-8 ms
+# without, for edges one pixel harder
 TASK_OPTION_XML = ('<option timestep="0.001" integrator="implicitfast" cone="elliptic" noslip_iterations="4"/>\n'
-                   '  <visual><global offwidth="640" offheight="480"/><quality shadowsize="0"/></visual>')
+                   '  <visual><global offwidth="640" offheight="480"/><quality shadowsize="0" offsamples="0"/>'
+                   '</visual>')

@@ -181,7 +181,7 @@ class ChunkPolicyNet(nn.Module):
             assert config.encoder is not None
             enc = dict(config.encoder)
             enc["widths"] = tuple(enc["widths"])
-            self.encoder = TactileEncoder(EncoderConfig(**enc))
+            self.encoder = TactileEncoder(EncoderConfig(**enc)).eval()
             self.encoder.requires_grad_(False)
             feat = int(enc["widths"][-1])
             self.encoder_proj = nn.Sequential(nn.LayerNorm(feat), nn.Linear(feat, d))
@@ -204,6 +204,7 @@ class ChunkPolicyNet(nn.Module):
     def encoder_features(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 3, 48, 64) in [0, 1] -> (B, F) frozen encoder features (no gradient)."""
         assert self.encoder is not None
+        self.encoder.eval()  # whatever mode the policy is in: BatchNorm must not learn from policy data
         with torch.no_grad():
             return self.encoder.encode(images)
 

@@ -184,7 +184,9 @@ def train(cache: DemoCache, config: PolicyConfig, *, steps: int, batch_size: int
     torch.manual_seed(seed)
     if net is None:
         net = ChunkPolicyNet(config)
-        if encoder_path is not None:
+        if config.variant == "vision_encoder":
+            if encoder_path is None:
+                raise ValueError("the vision_encoder variant needs the pretrained encoder's checkpoint")
             load_encoder_weights(net, encoder_path)
     if config.variant == "vision_encoder" and "feat_left" not in cache.tensors:
         add_encoder_features(cache, net)

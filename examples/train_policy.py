@@ -297,7 +297,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     run = Path(args.run)
     summary = json.loads((run / "train.json").read_text())
     camera_size = summary["camera_size"] if summary["cameras"] else None
-    json_path = run / "eval.json"
+    json_path = run / ("eval.json" if args.seed == 0 else f"eval-{args.seed}.json")
     cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed)
     print(" ".join(cmd), flush=True)
     start = time.perf_counter()
@@ -326,27 +326,63 @@ def machine() -> dict[str, Any]:
             "threads_per_process": 1, "gpu": None}
 
 
+def merged_evaluation(run: Path) -> dict[str, Any] | None:
+    """``eval.json`` and any ``eval-*.json`` of a run (evaluations on disjoint seed ranges, ``--seed``), as one."""
+    files = sorted(run.glob("eval.json")) + sorted(run.glob("eval-*.json"))
+    if not files:
+        return None
+    evals = [json.loads(f.read_text()) for f in files]
+    rollouts = [r for ev in evals for r in ev["per_rollout"]]
+    seeds = [r["seed"] for r in rollouts]
+    if len(set(seeds)) != len(seeds):
+        raise SystemExit(f"{run}: evaluations overlap in seeds; give each a disjoint --seed range")
+    from univtac_data.envs.evaluate import wilson_interval
+
+    n, k = len(rollouts), sum(r["success"] for r in rollouts)
+    return {"rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
+            "unsafe_rate": sum(r["unsafe"] for r in rollouts) / n,
+            "errors": sum(r["reason"].startswith("error") for r in rollouts),
+            "mean_steps": sum(r["steps"] for r in rollouts) / n,
+            "wall_s": sum(ev.get("wall_s", ev.get("elapsed_s", 0.0)) for ev in evals),
+            "commands": [ev.get("command") for ev in evals], "per_rollout": rollouts}
+
+
 def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
     rows = []
     for run in runs:
-        if not (run / "train.json").exists() or not (run / "eval.json").exists():
+        ev = merged_evaluation(run)
+        if not (run / "train.json").exists() or ev is None:
             continue
         train_s = json.loads((run / "train.json").read_text())
-        ev = json.loads((run / "eval.json").read_text())
         rows.append({
             "task": train_s["task"], "variant": train_s["variant"], "demos": train_s["demos"],
-            "rollouts": ev["rollouts"], "successes": sum(r["success"] for r in ev["per_rollout"]),
-            "success_rate": ev["success_rate"], "wilson95": ev["wilson95"], "unsafe_rate": ev["unsafe_rate"],
-            "errors": ev["errors"], "mean_steps": ev["mean_steps"], "rate_hz": train_s["rate_hz"],
+            "rollouts": ev["rollouts"], "successes": ev["successes"], "success_rate": ev["success_rate"],
+            "wilson95": ev["wilson95"], "unsafe_rate": ev["unsafe_rate"], "errors": ev["errors"],
+            "mean_steps": ev["mean_steps"], "rate_hz": train_s["rate_hz"], "demo_rate_hz": train_s["demo_rate_hz"],
             "chunk": train_s["chunk"], "train_steps": train_s["steps"], "epochs": round(train_s["epochs"], 2),
             "batch_size": train_s["batch_size"], "samples": train_s["samples"],
             "trainable_parameters": train_s["trainable_parameters"], "read_s": round(train_s["read_s"], 1),
-            "train_s": round(train_s["train_s"], 1), "eval_s": round(ev.get("wall_s", ev.get("elapsed_s", 0.0)), 1),
+            "train_s": round(train_s["train_s"], 1), "eval_s": round(ev["wall_s"], 1),
             "loss_first_100": train_s["loss_first_100"], "loss_last_100": train_s["loss_last_100"],
-            "eval_command": ev.get("command"), "camera_size": train_s["camera_size"],
+            "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
+            "camera_size": train_s["camera_size"],
         })
     order = {v: k for k, v in enumerate(VARIANTS)}
     return sorted(rows, key=lambda r: (r["task"], order[r["variant"]]))
+
+
+def failure_reasons(rollouts: list[dict[str, Any]]) -> dict[str, int]:
+    """How rollouts ended: success, step_limit, unsafe by rule (indentation, in-hand slip), error."""
+    counts: dict[str, int] = {}
+    for r in rollouts:
+        reason = r["reason"]
+        if reason.startswith("unsafe:"):
+            reason = "unsafe: " + reason.split(":", 1)[1].strip().split(" ")[0]
+            reason = {"unsafe: in-hand": "unsafe: in-hand slip"}.get(reason, reason)
+        elif reason.startswith("error"):
+            reason = "error"
+        counts[reason] = counts.get(reason, 0) + 1
+    return dict(sorted(counts.items()))
 
 
 def chart(rows: list[dict[str, Any]], path: Path) -> None:

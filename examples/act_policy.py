@@ -41,6 +41,7 @@ from torch.nn import functional as F
 VARIANTS = ("vision", "vision_tactile", "vision_encoder")
 PADS = ("left", "right")
 CHECKPOINT_ENV = "UNIVTAC_POLICY_CHECKPOINT"
+ENSEMBLE_K_ENV = "UNIVTAC_POLICY_ENSEMBLE_K"
 
 
 @dataclass(frozen=True)
@@ -242,7 +243,7 @@ def masked_l1(pred: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) ->
 class TemporalEnsembler:
     """ACT's temporal ensembling: every step adds a chunk (C, D) predicted for steps t .. t + C - 1; the
     action for step t is the average of every prediction made for t, weighted exp(-k i) with i = 0 the
-    oldest prediction."""
+    oldest prediction (a negative k weights the newest most)."""
 
     def __init__(self, chunk: int, k: float) -> None:
         self.chunk, self.k = chunk, k
@@ -263,11 +264,12 @@ class TemporalEnsembler:
 class ChunkPolicy:
     """What ``univtac-data evaluate`` calls: ``reset()``, ``act(obs) -> (8,)`` absolute action."""
 
-    def __init__(self, net: ChunkPolicyNet, norm: Normalization) -> None:
+    def __init__(self, net: ChunkPolicyNet, norm: Normalization, ensemble_k: float | None = None) -> None:
         self.net = net.eval()
         self.norm = norm
         self.config = net.config
-        self.ensembler = TemporalEnsembler(self.config.chunk, self.config.ensemble_k)
+        k = self.config.ensemble_k if ensemble_k is None else ensemble_k
+        self.ensembler = TemporalEnsembler(self.config.chunk, k)
 
     def reset(self) -> None:
         self.ensembler.reset()
@@ -319,18 +321,21 @@ def load_checkpoint(path: str | os.PathLike[str]) -> tuple[ChunkPolicyNet, Norma
     return net.eval(), Normalization.from_dict(data["normalization"]), data.get("extra", {})
 
 
-def load_policy(path: str | os.PathLike[str]) -> ChunkPolicy:
+def load_policy(path: str | os.PathLike[str], ensemble_k: float | None = None) -> ChunkPolicy:
     net, norm, _ = load_checkpoint(path)
-    return ChunkPolicy(net, norm)
+    return ChunkPolicy(net, norm, ensemble_k)
 
 
 def from_env() -> ChunkPolicy:
-    """Factory for ``--policy act_policy:from_env``: the checkpoint at ``$UNIVTAC_POLICY_CHECKPOINT``."""
+    """Factory for ``--policy act_policy:from_env``: the checkpoint at ``$UNIVTAC_POLICY_CHECKPOINT``;
+    ``$UNIVTAC_POLICY_ENSEMBLE_K`` overrides the ensembling weight k (a negative k weights the newest
+    prediction most: -10 is in effect the newest chunk's action alone, the most reactive rollout)."""
     path = os.environ.get(CHECKPOINT_ENV)
     if not path:
         raise RuntimeError(f"set {CHECKPOINT_ENV} to a checkpoint written by examples/train_policy.py")
     torch.set_num_threads(int(os.environ.get("UNIVTAC_POLICY_THREADS", "1")))
-    return load_policy(path)
+    k = os.environ.get(ENSEMBLE_K_ENV)
+    return load_policy(path, float(k) if k else None)
 
 
 def parameter_count(net: nn.Module, trainable: bool = True) -> int:

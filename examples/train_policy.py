@@ -41,7 +41,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from act_policy import (CHECKPOINT_ENV, PADS, VARIANTS, ChunkPolicyNet, Normalization, PolicyConfig,  # noqa: E402
+from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, VARIANTS, ChunkPolicyNet, Normalization, PolicyConfig,  # noqa: E402
                         masked_l1, parameter_count, resize_uint8, save_checkpoint)
 
 EXAMPLES = Path(__file__).resolve().parent
@@ -284,9 +284,12 @@ def evaluate_command(task: str, episodes: int, rate_hz: float, camera_size: str 
     return cmd
 
 
-def policy_env(checkpoint: Path, threads: int = 1) -> dict[str, str]:
+def policy_env(checkpoint: Path, threads: int = 1, ensemble_k: float | None = None) -> dict[str, str]:
     env = dict(os.environ)
     env[CHECKPOINT_ENV] = str(checkpoint)
+    env.pop(ENSEMBLE_K_ENV, None)
+    if ensemble_k is not None:
+        env[ENSEMBLE_K_ENV] = repr(ensemble_k)
     env["UNIVTAC_POLICY_THREADS"] = str(threads)
     env["PYTHONPATH"] = os.pathsep.join([str(EXAMPLES), *filter(None, [env.get("PYTHONPATH")])])
     env.setdefault("MUJOCO_GL", "egl")
@@ -301,11 +304,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed)
     print(" ".join(cmd), flush=True)
     start = time.perf_counter()
-    subprocess.run(cmd, env=policy_env(run / "policy.pt", args.threads), check=True)
+    subprocess.run(cmd, env=policy_env(run / "policy.pt", args.threads, args.ensemble_k), check=True)
     elapsed = time.perf_counter() - start
     result = json.loads(json_path.read_text())
     result["wall_s"] = elapsed
-    result["command"] = " ".join(cmd)
+    result["ensemble_k"] = summary.get("ensemble_k", 0.01) if args.ensemble_k is None else args.ensemble_k
+    prefix = "" if args.ensemble_k is None else f"{ENSEMBLE_K_ENV}={args.ensemble_k!r} "
+    result["command"] = prefix + " ".join(cmd)
     json_path.write_text(json.dumps(result, indent=1))
     print(f"evaluated in {elapsed:.0f} s", flush=True)
     return 0
@@ -344,7 +349,8 @@ def merged_evaluation(run: Path) -> dict[str, Any] | None:
             "errors": sum(r["reason"].startswith("error") for r in rollouts),
             "mean_steps": sum(r["steps"] for r in rollouts) / n,
             "wall_s": sum(ev.get("wall_s", ev.get("elapsed_s", 0.0)) for ev in evals),
-            "commands": [ev.get("command") for ev in evals], "per_rollout": rollouts}
+            "commands": [ev.get("command") for ev in evals], "per_rollout": rollouts,
+            "ensemble_k": evals[0].get("ensemble_k", 0.01)}
 
 
 def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
@@ -365,7 +371,7 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "train_s": round(train_s["train_s"], 1), "eval_s": round(ev["wall_s"], 1),
             "loss_first_100": train_s["loss_first_100"], "loss_last_100": train_s["loss_last_100"],
             "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
-            "camera_size": train_s["camera_size"],
+            "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
         })
     order = {v: k for k, v in enumerate(VARIANTS)}
     return sorted(rows, key=lambda r: (r["task"], order[r["variant"]]))
@@ -420,7 +426,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     rows = collect_rows([Path(r) for r in args.runs])
     if not rows:
         raise SystemExit("no run has both train.json and eval.json")
-    report = {"machine": machine(), "note": args.note, "rows": rows}
+    report: dict[str, Any] = {"machine": machine(), "note": args.note}
+    if args.setup:  # what the runs started from (generation times, reference rates), measured elsewhere
+        report["setup"] = json.loads(Path(args.setup).read_text())
+    report["rows"] = rows
+    if args.ablation_runs:
+        report["ablation"] = {"note": args.ablation_note, "rows": collect_rows([Path(r) for r in args.ablation_runs])}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     if args.chart:
@@ -462,11 +473,17 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--episodes", type=int, default=100)
     ev.add_argument("--seed", type=int, default=0)
     ev.add_argument("--threads", type=int, default=1)
+    ev.add_argument("--ensemble-k", type=float, default=None,
+                    help="override the temporal-ensembling weight k (negative: the newest prediction weighs most)")
     rp = sub.add_parser("report", help="JSON, chart and table rows from evaluated runs")
     rp.add_argument("--runs", nargs="+", required=True)
     rp.add_argument("--json", required=True)
     rp.add_argument("--chart", default=None)
     rp.add_argument("--note", default="")
+    rp.add_argument("--ablation-runs", nargs="*", default=None, help="runs reported apart (same checkpoints, "
+                    "another rollout setting)")
+    rp.add_argument("--ablation-note", default="")
+    rp.add_argument("--setup", default=None, help="JSON file stored as the report's 'setup' (e.g. generation times)")
     args = parser.parse_args(argv)
     return {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report}[args.command](args)
 

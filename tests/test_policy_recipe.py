@@ -116,6 +116,9 @@ def test_temporal_ensembling_weights_every_prediction_for_the_step():
     assert np.allclose(out, want)
     ens.reset()
     assert np.allclose(ens(chunks[4]), chunks[4][0])
+    newest = TemporalEnsembler(chunk, -50.0)  # a negative k weights the newest prediction most
+    newest(chunks[0])
+    assert np.allclose(newest(chunks[1]), chunks[1][0])
 
 
 def test_training_on_a_tiny_corpus_lowers_the_loss(trained):
@@ -186,6 +189,10 @@ def test_a_trained_policy_runs_through_univtac_data_evaluate(trained, tmp_path):
     report = json.loads(out.read_text())
     assert report["rollouts"] == 1 and report["errors"] == 0, report["per_rollout"]
     assert 1 <= report["per_rollout"][0]["steps"] <= 60
+    newest = cli("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras",
+                 "--rate-hz", "10", extra_env={CHECKPOINT_ENV: str(tmp_path / "policy.pt"),
+                                               "UNIVTAC_POLICY_ENSEMBLE_K": "-10"})
+    assert newest.returncode == 0 and "errors 0" in newest.stdout, newest.stderr
     missing = cli("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras",
                   extra_env={CHECKPOINT_ENV: ""})
     assert missing.returncode != 0 and CHECKPOINT_ENV in missing.stderr

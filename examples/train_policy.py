@@ -65,8 +65,8 @@ class DemoCache:
 
 
 def demo_rate(dataset: Any) -> float:
-    rates = {float(ds.index[ref.episode_id].nominal_rate_hz)
-             for ref in dataset.episodes for ds in [dataset.datasets[ref.dataset]]}
+    """The recording rate (Hz) of a ``PolicyChunkDataset``'s episodes, from the datasets' indexes."""
+    rates = {float(dataset.datasets[ref.dataset].index[ref.episode_id].nominal_rate_hz) for ref in dataset.episodes}
     if len(rates) != 1:
         raise SystemExit(f"demonstrations recorded at several rates {sorted(rates)}: use one rate per run")
     return rates.pop()
@@ -253,7 +253,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             cache.tensors.pop(f"tactile_{pad}")
     t_read = time.perf_counter() - t0
     log(f"  {len(cache)} samples from {cache.episodes} episodes at {cache.demo_rate_hz:g} Hz "
-        f"(every {cache.subsample}th action: {config.rate_hz:g} Hz) in {t_read:.0f} s")
+        f"(one action in {cache.subsample}: {config.rate_hz:g} Hz) in {t_read:.0f} s")
     t1 = time.perf_counter()
     net, norm, losses = train(cache, config, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                               shift_px=args.shift_px, encoder_path=args.encoder, log=log)

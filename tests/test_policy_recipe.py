@@ -26,7 +26,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 if str(EXAMPLES) not in sys.path:
     sys.path.insert(0, str(EXAMPLES))
 
-from act_policy import (CHECKPOINT_ENV, ChunkPolicy, ChunkPolicyNet, PolicyConfig, TemporalEnsembler,  # noqa: E402
+from act_policy import (CHECKPOINT_ENV, ChunkPolicy, PolicyConfig, TemporalEnsembler,  # noqa: E402
                         load_checkpoint, masked_l1, save_checkpoint)
 from train_policy import load_demos, train  # noqa: E402
 

@@ -430,8 +430,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.setup:  # what the runs started from (generation times, reference rates), measured elsewhere
         report["setup"] = json.loads(Path(args.setup).read_text())
     report["rows"] = rows
-    if args.ablation_runs:
-        report["ablation"] = {"note": args.ablation_note, "rows": collect_rows([Path(r) for r in args.ablation_runs])}
+    notes = args.ablation_note or []
+    for k, runs in enumerate(args.ablation_runs or []):
+        report.setdefault("ablations", []).append(
+            {"note": notes[k] if k < len(notes) else "", "rows": collect_rows([Path(r) for r in runs])})
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     if args.chart:
@@ -480,9 +482,9 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--json", required=True)
     rp.add_argument("--chart", default=None)
     rp.add_argument("--note", default="")
-    rp.add_argument("--ablation-runs", nargs="*", default=None, help="runs reported apart (same checkpoints, "
-                    "another rollout setting)")
-    rp.add_argument("--ablation-note", default="")
+    rp.add_argument("--ablation-runs", nargs="+", action="append", default=None,
+                    help="a group of runs reported apart (e.g. another rollout setting or rate); repeat for more")
+    rp.add_argument("--ablation-note", action="append", default=None, help="a note per --ablation-runs group")
     rp.add_argument("--setup", default=None, help="JSON file stored as the report's 'setup' (e.g. generation times)")
     args = parser.parse_args(argv)
     return {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report}[args.command](args)

@@ -34,6 +34,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--contact", choices=("geometric", "elastic"), default="geometric")
     parser.add_argument("--camera-size", type=camera_size, default=(480, 270), metavar="WxH", help="camera size (default 480x270)")
     parser.add_argument("--no-cameras", action="store_true", help="observe no camera images (faster)")
+    parser.add_argument("--rate-hz", type=float, default=50.0, metavar="HZ",
+                        help="policy steps a second (default 50, the tasks' rate; a whole number of 2 ms ticks); "
+                             "the step limit is kept as a time limit (max_steps x HZ / 50)")
     parser.add_argument("--json", default=None, metavar="FILE", help="write the summary and every rollout to FILE")
     parser.add_argument("--video", default=None, metavar="DIR",
                         help="write MP4s of the first rollouts to DIR (head camera beside both tactile images; "
@@ -52,12 +55,20 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError(str(error)) from None
     if args.seed < 0:
         raise DatasetError(f"--seed must be >= 0 (got {args.seed})")
+    from univtac_data.generators.tasks.base import TaskConfig
+
+    try:
+        if not args.rate_hz > 0:
+            raise ValueError(f"must be > 0 (got {args.rate_hz})")
+        TaskConfig(rate_hz=args.rate_hz).ticks_per_step
+    except ValueError as error:
+        raise DatasetError(f"--rate-hz: {error}") from None
     if args.video is not None:
         from univtac_data.export.video import require_av
 
         require_av()
     env_kwargs = {"sensor": args.sensor, "contact": args.contact, "cameras": not args.no_cameras,
-                  "camera_size": args.camera_size}
+                  "camera_size": args.camera_size, "rate_hz": args.rate_hz}
     report = evaluate(args.name, args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
                       video_dir=args.video, videos=args.videos, progress=sys.stderr.isatty())
     s = report.summary()

@@ -1,0 +1,347 @@
+"""A small ACT-style action-chunking policy in plain torch, and its runtime for ``univtac-data evaluate``.
+
+The network (``ChunkPolicyNet``) reads one observation and predicts the next ``chunk`` absolute actions
+(x, y, z m; quaternion w, x, y, z; opening m, all normalised by the demonstrations' mean and std), as ACT
+does without its CVAE: a transformer encoder over observation tokens, a transformer decoder with one learned
+query per action of the chunk. Tokens:
+
+* ``agent_pos`` (8,): one token (the end-effector pose in the world and the opening, normalised);
+* cameras (``head``, ``wrist``, RGB, recorded at 128 x 72 px, area-resized to 64 x 36 px: two CPU cores
+  train a bigger image network too slowly): a small CNN per camera, stride 16, one token per cell of its
+  3 x 4 feature map, with a learned position embedding;
+* tactile, by variant: ``vision`` none; ``vision_tactile`` each pad's marked image (area-resized to
+  48 x 64 px) through a small CNN trained end to end, one token per pad; ``vision_encoder`` the same images
+  through the pretrained ``TactileEncoder`` (``examples/tactile_encoder.py``), frozen, 128 features per pad
+  projected to one token.
+
+Training minimises the L1 distance to the demonstrated chunk over the actions that exist: ``action_is_pad``
+(past the episode's end) is masked out of the loss (``masked_l1``). At rollout the policy predicts a chunk
+every step and averages every prediction made for the current step with weights exp(-k i), i = 0 the
+oldest (ACT's temporal ensembling, ``TemporalEnsembler``).
+
+``univtac-data evaluate TASK --policy act_policy:from_env`` (with ``examples/`` on ``PYTHONPATH``) loads
+the checkpoint named by the environment variable ``UNIVTAC_POLICY_CHECKPOINT``; evaluate at the rate the
+policy was trained at (``--rate-hz``, stored in the checkpoint as ``config.rate_hz``) and with the camera
+size it was trained on. ``examples/train_policy.py`` trains, evaluates and reports.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+VARIANTS = ("vision", "vision_tactile", "vision_encoder")
+PADS = ("left", "right")
+CHECKPOINT_ENV = "UNIVTAC_POLICY_CHECKPOINT"
+ENSEMBLE_K_ENV = "UNIVTAC_POLICY_ENSEMBLE_K"
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Architecture and rollout settings, saved with the checkpoint."""
+
+    variant: str = "vision"
+    cameras: tuple[str, ...] = ("head", "wrist")
+    camera_hw: tuple[int, int] = (36, 64)     # height, width px the camera CNN reads (area-resized)
+    camera_widths: tuple[int, ...] = (16, 32, 32, 64)  # channels of the camera CNN's four stride-2 stages
+    tactile_hw: tuple[int, int] = (48, 64)    # height, width px of each pad's image (the encoder's input)
+    chunk: int = 10                            # actions predicted per step
+    rate_hz: float = 10.0                      # policy steps a second the chunk is spaced at
+    d_model: int = 128
+    heads: int = 4
+    encoder_layers: int = 2
+    decoder_layers: int = 2
+    feedforward: int = 512
+    dropout: float = 0.1
+    ensemble_k: float = 0.01                   # temporal-ensembling weight exp(-k i), i = 0 the oldest
+    encoder: dict[str, Any] | None = field(default=None)  # EncoderConfig of the frozen encoder (vision_encoder)
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {self.variant!r})")
+        if self.variant == "vision_encoder" and self.encoder is None:
+            raise ValueError("the vision_encoder variant needs the encoder's config (load it with --encoder PATH)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**asdict(self), "cameras": list(self.cameras), "camera_hw": list(self.camera_hw),
+                "camera_widths": list(self.camera_widths), "tactile_hw": list(self.tactile_hw)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PolicyConfig:
+        return cls(**{**data, "cameras": tuple(data["cameras"]), "camera_hw": tuple(data["camera_hw"]),
+                      "camera_widths": tuple(data["camera_widths"]), "tactile_hw": tuple(data["tactile_hw"])})
+
+    @property
+    def uses_tactile(self) -> bool:
+        return self.variant != "vision"
+
+
+# ----------------------------------------------------------------------------------------- preprocessing
+
+def resize_uint8(images: torch.Tensor, hw: tuple[int, int]) -> torch.Tensor:
+    """(B, 3, H, W) uint8 -> (B, 3, h, w) uint8, area-averaged (as the encoder's corpus was made); the
+    same function prepares training samples and rollout observations."""
+    if tuple(images.shape[-2:]) == tuple(hw):
+        return images
+    return F.interpolate(images.float(), size=hw, mode="area").round().clamp(0, 255).to(torch.uint8)
+
+
+def hwc_to_chw(array: np.ndarray) -> torch.Tensor:
+    """(H, W, 3) uint8 observation -> (1, 3, H, W) uint8 tensor."""
+    return torch.from_numpy(np.ascontiguousarray(array)).permute(2, 0, 1)[None]
+
+
+@dataclass
+class Normalization:
+    """Per-component mean and std (float32) of agent_pos (8,) and of the actions (8,). A spread below
+    ``floor`` (a quaternion component that hardly moves) is floored, so a tiny deviation at test time
+    does not become a huge input."""
+
+    agent_mean: torch.Tensor
+    agent_std: torch.Tensor
+    action_mean: torch.Tensor
+    action_std: torch.Tensor
+
+    @classmethod
+    def fit(cls, agent_pos: torch.Tensor, actions: torch.Tensor, is_pad: torch.Tensor,
+            floor: float = 1e-2) -> Normalization:
+        real = actions[~is_pad]
+        return cls(agent_pos.mean(0), agent_pos.std(0).clamp_min(floor), real.mean(0), real.std(0).clamp_min(floor))
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: v.tolist() for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, list[float]]) -> Normalization:
+        return cls(**{k: torch.tensor(v, dtype=torch.float32) for k, v in data.items()})
+
+
+# ---------------------------------------------------------------------------------------------- network
+
+def conv_gn(c_in: int, c_out: int, kernel: int, stride: int) -> nn.Sequential:
+    # GroupNorm, not BatchNorm: the same arithmetic in training and at rollout (batch of one)
+    return nn.Sequential(nn.Conv2d(c_in, c_out, kernel, stride, kernel // 2, bias=False), nn.GroupNorm(8, c_out),
+                         nn.ReLU(inplace=True))
+
+
+class CameraCNN(nn.Module):
+    """(B, 3, H, W) in [0, 1] -> (B, H/16 * W/16, d) tokens (3 x 4 at 36 x 64 px) with a learned position
+    embedding."""
+
+    def __init__(self, hw: tuple[int, int], widths: tuple[int, ...], d_model: int) -> None:
+        super().__init__()
+        layers, c_in = [], 3
+        for k, c in enumerate(widths):
+            layers.append(conv_gn(c_in, c, 5 if k == 0 else 3, 2))
+            c_in = c
+        self.net = nn.Sequential(*layers, nn.Conv2d(c_in, d_model, 1))
+        with torch.no_grad():
+            n = self.net(torch.zeros(1, 3, *hw)).flatten(2).shape[-1]
+        self.position = nn.Parameter(torch.randn(1, n, d_model) * 0.02)
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return self.net(image - 0.5).flatten(2).transpose(1, 2) + self.position
+
+
+class TactileCNN(nn.Module):
+    """(B, 3, 48, 64) in [0, 1] -> (B, d): a pad's marked image to one token (trained end to end)."""
+
+    def __init__(self, d_model: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(conv_gn(3, 16, 3, 2), conv_gn(16, 32, 3, 2), conv_gn(32, 64, 3, 2),
+                                 conv_gn(64, 64, 3, 2))
+        self.out = nn.Linear(64, d_model)
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return self.out(F.adaptive_avg_pool2d(self.net(image - 0.5), 1).flatten(1))
+
+
+class ChunkPolicyNet(nn.Module):
+    """Observation -> (B, chunk, 8) normalised actions (see the module docstring)."""
+
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__()
+        self.config = config
+        d = config.d_model
+        self.agent = nn.Linear(8, d)
+        self.cameras = nn.ModuleDict({name: CameraCNN(config.camera_hw, config.camera_widths, d) for name in config.cameras})
+        self.tactile_cnn = TactileCNN(d) if config.variant == "vision_tactile" else None
+        self.encoder: nn.Module | None = None
+        self.encoder_proj: nn.Module | None = None
+        if config.variant == "vision_encoder":
+            from tactile_encoder import EncoderConfig, TactileEncoder
+
+            assert config.encoder is not None
+            enc = dict(config.encoder)
+            enc["widths"] = tuple(enc["widths"])
+            self.encoder = TactileEncoder(EncoderConfig(**enc)).eval()
+            self.encoder.requires_grad_(False)
+            feat = int(enc["widths"][-1])
+            self.encoder_proj = nn.Sequential(nn.LayerNorm(feat), nn.Linear(feat, d))
+        n_tactile = len(PADS) if config.uses_tactile else 0
+        self.type_embedding = nn.Parameter(torch.randn(1 + n_tactile, d) * 0.02)  # agent, then each pad
+        layer = dict(d_model=d, nhead=config.heads, dim_feedforward=config.feedforward, dropout=config.dropout,
+                     batch_first=True, norm_first=True)
+        self.transformer_encoder = nn.TransformerEncoder(nn.TransformerEncoderLayer(**layer), config.encoder_layers,
+                                                         enable_nested_tensor=False)
+        self.transformer_decoder = nn.TransformerDecoder(nn.TransformerDecoderLayer(**layer), config.decoder_layers)
+        self.queries = nn.Parameter(torch.randn(1, config.chunk, d) * 0.02)
+        self.head = nn.Linear(d, 8)
+
+    def train(self, mode: bool = True) -> ChunkPolicyNet:
+        super().train(mode)
+        if self.encoder is not None:  # frozen: its BatchNorm statistics stay the pretrained ones
+            self.encoder.eval()
+        return self
+
+    def encoder_features(self, images: torch.Tensor) -> torch.Tensor:
+        """(B, 3, 48, 64) in [0, 1] -> (B, F) frozen encoder features (no gradient)."""
+        assert self.encoder is not None
+        self.encoder.eval()  # whatever mode the policy is in: BatchNorm must not learn from policy data
+        with torch.no_grad():
+            return self.encoder.encode(images)
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """``obs``: ``agent_pos`` (B, 8) normalised; each camera (B, 3, h, w) in [0, 1]; for the tactile
+        variants ``tactile_left``/``tactile_right`` (B, 3, 48, 64) in [0, 1], or for ``vision_encoder``
+        precomputed ``feat_left``/``feat_right`` (B, F) instead of the images."""
+        tokens = [(self.agent(obs["agent_pos"]) + self.type_embedding[0])[:, None]]
+        for k, pad in enumerate(PADS if self.config.uses_tactile else ()):
+            if self.tactile_cnn is not None:
+                token = self.tactile_cnn(obs[f"tactile_{pad}"])
+            else:
+                assert self.encoder_proj is not None
+                feat = obs.get(f"feat_{pad}")
+                if feat is None:
+                    feat = self.encoder_features(obs[f"tactile_{pad}"])
+                token = self.encoder_proj(feat)
+            tokens.append((token + self.type_embedding[1 + k])[:, None])
+        for name, cnn in self.cameras.items():
+            tokens.append(cnn(obs[name]))
+        memory = self.transformer_encoder(torch.cat(tokens, 1))
+        queries = self.queries.expand(memory.shape[0], -1, -1)
+        return self.head(self.transformer_decoder(queries, memory))
+
+
+def masked_l1(pred: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
+    """Mean L1 over the actions that exist: (B, C, 8) against (B, C, 8), ``is_pad`` (B, C) True past the
+    episode's end (those rows never count, whatever the padding put there)."""
+    keep = (~is_pad).unsqueeze(-1).to(pred.dtype)
+    return ((pred - target).abs() * keep).sum() / (keep.sum() * pred.shape[-1]).clamp_min(1.0)
+
+
+# ---------------------------------------------------------------------------------------------- rollout
+
+class TemporalEnsembler:
+    """ACT's temporal ensembling: every step adds a chunk (C, D) predicted for steps t .. t + C - 1; the
+    action for step t is the average of every prediction made for t, weighted exp(-k i) with i = 0 the
+    oldest prediction (a negative k weights the newest most)."""
+
+    def __init__(self, chunk: int, k: float) -> None:
+        self.chunk, self.k = chunk, k
+        self._chunks: deque[np.ndarray] = deque(maxlen=chunk)  # newest last; chunk j made j steps ago
+
+    def reset(self) -> None:
+        self._chunks.clear()
+
+    def __call__(self, chunk: np.ndarray) -> np.ndarray:
+        self._chunks.append(np.asarray(chunk, np.float64))
+        n = len(self._chunks)
+        # the chunk made (n - 1 - j) steps ago predicts this step at its row (n - 1 - j); j = 0 is the oldest
+        rows = np.stack([c[n - 1 - j] for j, c in enumerate(self._chunks)])
+        weights = np.exp(-self.k * np.arange(n))
+        return (weights[:, None] * rows).sum(0) / weights.sum()
+
+
+class ChunkPolicy:
+    """What ``univtac-data evaluate`` calls: ``reset()``, ``act(obs) -> (8,)`` absolute action."""
+
+    def __init__(self, net: ChunkPolicyNet, norm: Normalization, ensemble_k: float | None = None) -> None:
+        self.net = net.eval()
+        self.norm = norm
+        self.config = net.config
+        k = self.config.ensemble_k if ensemble_k is None else ensemble_k
+        self.ensembler = TemporalEnsembler(self.config.chunk, k)
+
+    def reset(self) -> None:
+        self.ensembler.reset()
+
+    def observation(self, obs: dict[str, Any]) -> dict[str, torch.Tensor]:
+        """An environment observation -> the network's inputs (batch of one), prepared as in training."""
+        cfg = self.config
+        agent = torch.as_tensor(np.asarray(obs["agent_pos"], np.float32))[None]
+        out = {"agent_pos": (agent - self.norm.agent_mean) / self.norm.agent_std}
+        pixels = obs["pixels"]
+        for name in cfg.cameras:
+            if name not in pixels:
+                raise KeyError(f"the policy was trained on the {name} camera; evaluate with cameras on")
+            out[name] = resize_uint8(hwc_to_chw(pixels[name]), cfg.camera_hw).float() / 255.0
+        if cfg.uses_tactile:
+            for pad in PADS:
+                out[f"tactile_{pad}"] = resize_uint8(hwc_to_chw(pixels[f"tactile_{pad}"]), cfg.tactile_hw).float() / 255.0
+        return out
+
+    @torch.no_grad()
+    def predict_chunk(self, obs: dict[str, Any]) -> np.ndarray:
+        """(C, 8) absolute actions (denormalised) for this step and the next C - 1."""
+        pred = self.net(self.observation(obs))[0]
+        return (pred * self.norm.action_std + self.norm.action_mean).numpy()
+
+    def act(self, obs: dict[str, Any]) -> np.ndarray:
+        action = self.ensembler(self.predict_chunk(obs))
+        quat = action[3:7]
+        action[3:7] = quat / max(float(np.linalg.norm(quat)), 1e-9)
+        return action.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+
+def save_checkpoint(path: str | os.PathLike[str], net: ChunkPolicyNet, norm: Normalization,
+                    extra: dict[str, Any] | None = None) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".part")
+    torch.save({"config": net.config.to_dict(), "state_dict": net.state_dict(), "normalization": norm.to_dict(),
+                "extra": extra or {}}, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | os.PathLike[str]) -> tuple[ChunkPolicyNet, Normalization, dict[str, Any]]:
+    data = torch.load(path, weights_only=False, map_location="cpu")
+    net = ChunkPolicyNet(PolicyConfig.from_dict(data["config"]))
+    net.load_state_dict(data["state_dict"])
+    return net.eval(), Normalization.from_dict(data["normalization"]), data.get("extra", {})
+
+
+def load_policy(path: str | os.PathLike[str], ensemble_k: float | None = None) -> ChunkPolicy:
+    net, norm, _ = load_checkpoint(path)
+    return ChunkPolicy(net, norm, ensemble_k)
+
+
+def from_env() -> ChunkPolicy:
+    """Factory for ``--policy act_policy:from_env``: the checkpoint at ``$UNIVTAC_POLICY_CHECKPOINT``;
+    ``$UNIVTAC_POLICY_ENSEMBLE_K`` overrides the ensembling weight k (a negative k weights the newest
+    prediction most: -10 is in effect the newest chunk's action alone, the most reactive rollout)."""
+    path = os.environ.get(CHECKPOINT_ENV)
+    if not path:
+        raise RuntimeError(f"set {CHECKPOINT_ENV} to a checkpoint written by examples/train_policy.py")
+    torch.set_num_threads(int(os.environ.get("UNIVTAC_POLICY_THREADS", "1")))
+    k = os.environ.get(ENSEMBLE_K_ENV)
+    return load_policy(path, float(k) if k else None)
+
+
+def parameter_count(net: nn.Module, trainable: bool = True) -> int:
+    return sum(p.numel() for p in net.parameters() if p.requires_grad or not trainable)
+
+
+__all__ = ["CHECKPOINT_ENV", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig",
+           "TemporalEnsembler", "from_env", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
+           "save_checkpoint"]

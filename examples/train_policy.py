@@ -1,0 +1,494 @@
+"""Policy baselines: does touch help? Train a small ACT-style policy (``examples/act_policy.py``) on task
+demonstrations, evaluate it with ``univtac-data evaluate``, and report.
+
+Three variants, one recipe: ``vision`` (head + wrist cameras + agent_pos), ``vision_tactile`` (plus both
+pads' marked tactile images through a small CNN trained end to end) and ``vision_encoder`` (plus both pads'
+images through the pretrained tactile encoder, frozen; ``--encoder PATH`` is a checkpoint of
+``examples/pretrain_encoder.py``).
+
+Demonstrations come from ``univtac_data.loaders.PolicyChunkDataset`` (``TASK_OBS_KEYS``: what the task
+environments observe). The policy runs at ``--rate-hz`` (10 Hz by default: two camera renders a step
+cost ~15 ms each on a CPU, so 50 Hz rollouts are five times dearer); demonstrations recorded faster are
+subsampled: actions are absolute end-effector targets, so the target 1 / rate s ahead is simply the
+recorded action that many frames on. Every recorded frame still starts a training sample (``--stride``).
+
+    # demonstrations (cameras small), then per variant: train, evaluate, report
+    univtac-data generate task pull_out_key --episodes 50 --camera-size 128x72 --workers 1 --out data/key
+    python examples/train_policy.py train --data data/key --task pull_out_key --variant vision --out runs/key/vision
+    python examples/train_policy.py train ... --variant vision_encoder --encoder encoder.pt --out runs/key/vision_encoder
+    python examples/train_policy.py evaluate --run runs/key/vision --episodes 100
+    python examples/train_policy.py report --runs runs/*/* --json benchmarks/results/policy_baselines.json \\
+        --chart docs/figures/policy_baselines.png
+
+``evaluate`` runs ``univtac-data evaluate TASK --policy act_policy:from_env --rate-hz R --camera-size WxH``
+with ``examples/`` on ``PYTHONPATH`` and ``UNIVTAC_POLICY_CHECKPOINT`` naming the run's ``policy.pt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, VARIANTS, ChunkPolicyNet, Normalization, PolicyConfig,  # noqa: E402
+                        masked_l1, parameter_count, resize_uint8, save_checkpoint)
+
+EXAMPLES = Path(__file__).resolve().parent
+
+
+# ------------------------------------------------------------------------------------------------- data
+
+class DemoCache:
+    """Every training sample in memory: images as uint8 at the policy's sizes, agent_pos (N, 8),
+    actions (N, C, 8) at the policy's rate and ``is_pad`` (N, C); for ``vision_encoder`` the frozen
+    encoder's features (N, F) per pad instead of the images (computed once)."""
+
+    def __init__(self, tensors: dict[str, torch.Tensor], episodes: int, demo_rate_hz: float, subsample: int) -> None:
+        self.tensors = tensors
+        self.episodes = episodes
+        self.demo_rate_hz = demo_rate_hz
+        self.subsample = subsample
+
+    def __len__(self) -> int:
+        return len(self.tensors["agent_pos"])
+
+
+def demo_rate(dataset: Any) -> float:
+    """The recording rate (Hz) of a ``PolicyChunkDataset``'s episodes, from the datasets' indexes."""
+    rates = {float(dataset.datasets[ref.dataset].index[ref.episode_id].nominal_rate_hz) for ref in dataset.episodes}
+    if len(rates) != 1:
+        raise SystemExit(f"demonstrations recorded at several rates {sorted(rates)}: use one rate per run")
+    return rates.pop()
+
+
+def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 1, max_episodes: int | None = None,
+               log: Any = print) -> DemoCache:
+    """Read the demonstrations of ``task`` at ``path`` through ``PolicyChunkDataset`` into memory."""
+    from univtac_data.loaders import TASK_OBS_KEYS, PolicyChunkDataset
+
+    keys = tuple(k for k in TASK_OBS_KEYS if not k.startswith("scene/cameras/")
+                 or k.split("/")[2] in config.cameras)
+    probe = PolicyChunkDataset(path, obs_keys=keys, names=task, chunk=1)
+    rate = demo_rate(probe)
+    subsample = round(rate / config.rate_hz)
+    if subsample < 1 or abs(rate / subsample - config.rate_hz) > 1e-6:
+        raise SystemExit(f"demonstrations at {rate} Hz cannot be subsampled to {config.rate_hz} Hz")
+    episodes = [ref.episode_id for ref in probe.episodes][:max_episodes]
+    # a chunk of C actions at the policy's rate spans C * subsample recorded actions; keep every
+    # subsample-th, the target reached 1 / rate s after the previous one
+    data = PolicyChunkDataset(path, obs_keys=keys, names=task, episodes=episodes, chunk=config.chunk * subsample,
+                              history=1, normalize="none", action_pad="repeat")
+    rows = np.flatnonzero(data.table.step % stride == 0)
+    pick = torch.arange(subsample - 1, config.chunk * subsample, subsample)
+    out: dict[str, list[torch.Tensor]] = {"agent_pos": [], "action": [], "action_is_pad": [], "episode": []}
+    for name in config.cameras:
+        out[name] = []
+    for pad in PADS:  # read for every variant, so one cache serves all three
+        out[f"tactile_{pad}"] = []
+    start = time.perf_counter()
+    for n, row in enumerate(rows):
+        sample = data[int(row)]
+        obs = sample["obs"]
+        out["agent_pos"].append(obs["agent_pos"][-1])
+        out["action"].append(sample["action"][pick])
+        out["action_is_pad"].append(sample["action_is_pad"][pick])
+        out["episode"].append(torch.tensor(int(data.table.episode[row])))
+        for name in config.cameras:
+            image = (obs[f"scene/cameras/{name}/rgb"][-1:] * 255).round().to(torch.uint8)
+            out[name].append(resize_uint8(image, config.camera_hw)[0])
+        for pad in PADS:
+            image = (obs[f"tactile/{pad}/marked_rgb"][-1:] * 255).round().to(torch.uint8)
+            out[f"tactile_{pad}"].append(resize_uint8(image, config.tactile_hw)[0])
+        if n % 2000 == 0:
+            log(f"  read {n}/{len(rows)} samples ({time.perf_counter() - start:.0f} s)")
+    tensors = {k: torch.stack(v) for k, v in out.items()}
+    return DemoCache(tensors, len(episodes), rate, subsample)
+
+
+def cached_demos(cache_path: str | None, data: str, task: str, config: PolicyConfig, stride: int,
+                 max_episodes: int | None, log: Any = print) -> DemoCache:
+    """``load_demos``, saved to ``cache_path`` the first time (the three variants read the same samples;
+    the file records what it was made from and is rebuilt when that differs)."""
+    key = {"data": str(Path(data).resolve()), "task": task, "rate_hz": config.rate_hz, "chunk": config.chunk,
+           "cameras": list(config.cameras), "camera_hw": list(config.camera_hw),
+           "tactile_hw": list(config.tactile_hw), "stride": stride, "max_episodes": max_episodes}
+    if cache_path and Path(cache_path).exists():
+        saved = torch.load(cache_path, weights_only=False)
+        if saved["key"] == key:
+            log(f"  samples from the cache {cache_path}")
+            return DemoCache(saved["tensors"], saved["episodes"], saved["demo_rate_hz"], saved["subsample"])
+    cache = load_demos(data, task, config, stride=stride, max_episodes=max_episodes, log=log)
+    if cache_path:
+        tmp = str(cache_path) + ".part"
+        torch.save({"key": key, "tensors": cache.tensors, "episodes": cache.episodes,
+                    "demo_rate_hz": cache.demo_rate_hz, "subsample": cache.subsample}, tmp)
+        os.replace(tmp, cache_path)
+    return cache
+
+
+def add_encoder_features(cache: DemoCache, net: ChunkPolicyNet, batch: int = 256) -> None:
+    """Replace each pad's images by the frozen encoder's features (they never change in training)."""
+    for pad in PADS:
+        images = cache.tensors.pop(f"tactile_{pad}")
+        feats = [net.encoder_features(images[s:s + batch].float() / 255.0) for s in range(0, len(images), batch)]
+        cache.tensors[f"feat_{pad}"] = torch.cat(feats)
+
+
+# ------------------------------------------------------------------------------------------------ train
+
+def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator) -> torch.Tensor:
+    """Shift each image by up to ``pad`` px (replicate padding, then a random crop): the camera augmentation
+    that keeps a small CNN from memorising 50 demonstrations' pixels."""
+    if pad == 0:
+        return images
+    b, c, h, w = images.shape
+    padded = torch.nn.functional.pad(images, (pad, pad, pad, pad), mode="replicate")
+    dx = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    dy = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    rows = (dy[:, None] + torch.arange(h)[None])[:, None, :, None].expand(b, c, h, w + 2 * pad)
+    cols = (dx[:, None] + torch.arange(w)[None])[:, None, None, :].expand(b, c, h, w)
+    return padded.gather(2, rows).gather(3, cols)
+
+
+def make_batch(cache: DemoCache, index: torch.Tensor, norm: Normalization, config: PolicyConfig,
+               shift_px: int, generator: torch.Generator | None) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    t = cache.tensors
+    obs = {"agent_pos": (t["agent_pos"][index] - norm.agent_mean) / norm.agent_std}
+    for name in config.cameras:
+        images = t[name][index].float() / 255.0
+        obs[name] = random_shift(images, shift_px, generator) if generator is not None else images
+    for pad in PADS if config.uses_tactile else ():
+        if f"feat_{pad}" in t:
+            obs[f"feat_{pad}"] = t[f"feat_{pad}"][index]
+        else:
+            obs[f"tactile_{pad}"] = t[f"tactile_{pad}"][index].float() / 255.0
+    actions = (t["action"][index] - norm.action_mean) / norm.action_std
+    return obs, actions, t["action_is_pad"][index]
+
+
+def train(cache: DemoCache, config: PolicyConfig, *, steps: int, batch_size: int, lr: float, seed: int,
+          shift_px: int = 4, encoder_path: str | None = None, log: Any = print,
+          net: ChunkPolicyNet | None = None) -> tuple[ChunkPolicyNet, Normalization, list[float]]:
+    """AdamW on the masked L1 loss; returns the network (eval mode), its normalisation and the loss per step."""
+    torch.manual_seed(seed)
+    if net is None:
+        net = ChunkPolicyNet(config)
+        if config.variant == "vision_encoder":
+            if encoder_path is None:
+                raise ValueError("the vision_encoder variant needs the pretrained encoder's checkpoint")
+            load_encoder_weights(net, encoder_path)
+    if config.variant == "vision_encoder" and "feat_left" not in cache.tensors:
+        add_encoder_features(cache, net)
+    t = cache.tensors
+    norm = Normalization.fit(t["agent_pos"], t["action"], t["action_is_pad"])
+    params = [p for p in net.parameters() if p.requires_grad]
+    optimiser = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda s: min(1.0, (s + 1) / 100))  # short warm-up
+    generator = torch.Generator().manual_seed(seed)
+    losses: list[float] = []
+    net.train()
+    start = time.perf_counter()
+    for step in range(steps):
+        index = torch.randint(0, len(cache), (batch_size,), generator=generator)
+        obs, actions, is_pad = make_batch(cache, index, norm, config, shift_px, generator)
+        loss = masked_l1(net(obs), actions, is_pad)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 10.0)
+        optimiser.step()
+        schedule.step()
+        losses.append(loss.item())
+        if step % 200 == 0 or step == steps - 1:
+            recent = np.mean(losses[-200:])
+            log(f"  step {step}/{steps}: loss {recent:.4f} ({time.perf_counter() - start:.0f} s)")
+    return net.eval(), norm, losses
+
+
+def load_encoder_weights(net: ChunkPolicyNet, path: str) -> None:
+    from pretrain_encoder import load_checkpoint as load_encoder
+
+    assert net.encoder is not None
+    net.encoder.load_state_dict(load_encoder(Path(path)).state_dict())
+    net.encoder.requires_grad_(False)
+
+
+def encoder_config(path: str) -> dict[str, Any]:
+    data = torch.load(path, weights_only=False, map_location="cpu")
+    return dict(data["config"])
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.variant == "vision_encoder" and not args.encoder:
+        raise SystemExit("--variant vision_encoder needs --encoder PATH (a checkpoint of examples/pretrain_encoder.py)")
+    width, height = (int(v) for v in args.camera_input.lower().split("x"))
+    cameras = () if args.cameras == "none" else tuple(args.cameras.split(","))
+    config = PolicyConfig(variant=args.variant, cameras=cameras, camera_hw=(height, width), chunk=args.chunk,
+                          rate_hz=args.rate_hz, d_model=args.d_model,
+                          encoder=encoder_config(args.encoder) if args.variant == "vision_encoder" else None)
+    log_file = open(out / "train.log", "a")
+
+    def log(message: str) -> None:
+        print(message, flush=True)
+        print(message, file=log_file, flush=True)
+
+    log(f"train {args.task} {args.variant}: {args}")
+    t0 = time.perf_counter()
+    cache = cached_demos(args.cache, args.data, args.task, config, args.stride, args.max_episodes, log=log)
+    if not config.uses_tactile:
+        for pad in PADS:
+            cache.tensors.pop(f"tactile_{pad}")
+    t_read = time.perf_counter() - t0
+    log(f"  {len(cache)} samples from {cache.episodes} episodes at {cache.demo_rate_hz:g} Hz "
+        f"(one action in {cache.subsample}: {config.rate_hz:g} Hz) in {t_read:.0f} s")
+    t1 = time.perf_counter()
+    net, norm, losses = train(cache, config, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
+                              shift_px=args.shift_px, encoder_path=args.encoder, log=log)
+    t_train = time.perf_counter() - t1
+    summary = {
+        "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
+        "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
+        "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
+        "lr": args.lr, "seed": args.seed, "camera_size": args.camera_size, "cameras": list(cameras),
+        "trainable_parameters": parameter_count(net), "encoder": args.encoder,
+        "read_s": t_read, "train_s": t_train, "threads": args.threads,
+        "loss_first_100": float(np.mean(losses[:100])), "loss_last_100": float(np.mean(losses[-100:])),
+    }
+    save_checkpoint(out / "policy.pt", net, norm, extra=summary)
+    (out / "train.json").write_text(json.dumps(summary, indent=1))
+    log(f"  trained in {t_train:.0f} s; loss {summary['loss_first_100']:.3f} -> {summary['loss_last_100']:.3f}; "
+        f"wrote {out / 'policy.pt'}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------------- evaluate
+
+def evaluate_command(task: str, episodes: int, rate_hz: float, camera_size: str | None, json_path: Path,
+                     seed: int = 0) -> list[str]:
+    cmd = ["univtac-data", "evaluate", task, "--policy", "act_policy:from_env", "--episodes", str(episodes),
+           "--seed", str(seed), "--rate-hz", f"{rate_hz:g}", "--json", str(json_path)]
+    cmd += ["--no-cameras"] if camera_size is None else ["--camera-size", camera_size]
+    return cmd
+
+
+def policy_env(checkpoint: Path, threads: int = 1, ensemble_k: float | None = None) -> dict[str, str]:
+    env = dict(os.environ)
+    env[CHECKPOINT_ENV] = str(checkpoint)
+    env.pop(ENSEMBLE_K_ENV, None)
+    if ensemble_k is not None:
+        env[ENSEMBLE_K_ENV] = repr(ensemble_k)
+    env["UNIVTAC_POLICY_THREADS"] = str(threads)
+    env["PYTHONPATH"] = os.pathsep.join([str(EXAMPLES), *filter(None, [env.get("PYTHONPATH")])])
+    env.setdefault("MUJOCO_GL", "egl")
+    return env
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    run = Path(args.run)
+    summary = json.loads((run / "train.json").read_text())
+    camera_size = summary["camera_size"] if summary["cameras"] else None
+    json_path = run / ("eval.json" if args.seed == 0 else f"eval-{args.seed}.json")
+    cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed)
+    print(" ".join(cmd), flush=True)
+    start = time.perf_counter()
+    subprocess.run(cmd, env=policy_env(run / "policy.pt", args.threads, args.ensemble_k), check=True)
+    elapsed = time.perf_counter() - start
+    result = json.loads(json_path.read_text())
+    result["wall_s"] = elapsed
+    result["ensemble_k"] = summary.get("ensemble_k", 0.01) if args.ensemble_k is None else args.ensemble_k
+    prefix = "" if args.ensemble_k is None else f"{ENSEMBLE_K_ENV}={args.ensemble_k!r} "
+    result["command"] = prefix + " ".join(cmd)
+    json_path.write_text(json.dumps(result, indent=1))
+    print(f"evaluated in {elapsed:.0f} s", flush=True)
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+def machine() -> dict[str, Any]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
+            "threads_per_process": 1, "gpu": None}
+
+
+def merged_evaluation(run: Path) -> dict[str, Any] | None:
+    """``eval.json`` and any ``eval-*.json`` of a run (evaluations on disjoint seed ranges, ``--seed``), as one."""
+    files = sorted(run.glob("eval.json")) + sorted(run.glob("eval-*.json"))
+    if not files:
+        return None
+    evals = [json.loads(f.read_text()) for f in files]
+    rollouts = [r for ev in evals for r in ev["per_rollout"]]
+    seeds = [r["seed"] for r in rollouts]
+    if len(set(seeds)) != len(seeds):
+        raise SystemExit(f"{run}: evaluations overlap in seeds; give each a disjoint --seed range")
+    from univtac_data.envs.evaluate import wilson_interval
+
+    n, k = len(rollouts), sum(r["success"] for r in rollouts)
+    return {"rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
+            "unsafe_rate": sum(r["unsafe"] for r in rollouts) / n,
+            "errors": sum(r["reason"].startswith("error") for r in rollouts),
+            "mean_steps": sum(r["steps"] for r in rollouts) / n,
+            "wall_s": sum(ev.get("wall_s", ev.get("elapsed_s", 0.0)) for ev in evals),
+            "commands": [ev.get("command") for ev in evals], "per_rollout": rollouts,
+            "ensemble_k": evals[0].get("ensemble_k", 0.01)}
+
+
+def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
+    rows = []
+    for run in runs:
+        ev = merged_evaluation(run)
+        if not (run / "train.json").exists() or ev is None:
+            continue
+        train_s = json.loads((run / "train.json").read_text())
+        rows.append({
+            "task": train_s["task"], "variant": train_s["variant"], "demos": train_s["demos"],
+            "rollouts": ev["rollouts"], "successes": ev["successes"], "success_rate": ev["success_rate"],
+            "wilson95": ev["wilson95"], "unsafe_rate": ev["unsafe_rate"], "errors": ev["errors"],
+            "mean_steps": ev["mean_steps"], "rate_hz": train_s["rate_hz"], "demo_rate_hz": train_s["demo_rate_hz"],
+            "chunk": train_s["chunk"], "train_steps": train_s["steps"], "epochs": round(train_s["epochs"], 2),
+            "batch_size": train_s["batch_size"], "samples": train_s["samples"],
+            "trainable_parameters": train_s["trainable_parameters"], "read_s": round(train_s["read_s"], 1),
+            "train_s": round(train_s["train_s"], 1), "eval_s": round(ev["wall_s"], 1),
+            "loss_first_100": train_s["loss_first_100"], "loss_last_100": train_s["loss_last_100"],
+            "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
+            "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
+        })
+    order = {v: k for k, v in enumerate(VARIANTS)}
+    return sorted(rows, key=lambda r: (r["task"], order[r["variant"]]))
+
+
+def failure_reasons(rollouts: list[dict[str, Any]]) -> dict[str, int]:
+    """How rollouts ended: success, step_limit, unsafe by rule (indentation, in-hand slip), error."""
+    counts: dict[str, int] = {}
+    for r in rollouts:
+        reason = r["reason"]
+        if reason.startswith("unsafe:"):
+            reason = "unsafe: " + reason.split(":", 1)[1].strip().split(" ")[0]
+            reason = {"unsafe: in-hand": "unsafe: in-hand slip"}.get(reason, reason)
+        elif reason.startswith("error"):
+            reason = "error"
+        counts[reason] = counts.get(reason, 0) + 1
+    return dict(sorted(counts.items()))
+
+
+def chart(rows: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = sorted({r["task"] for r in rows})
+    colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
+    fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(tasks), 3.6))
+    width = 0.26
+    for v, variant in enumerate(VARIANTS):
+        for t, task in enumerate(tasks):
+            row = next((r for r in rows if r["task"] == task and r["variant"] == variant), None)
+            if row is None:
+                continue
+            x = t + (v - 1) * width
+            p, (lo, hi) = row["success_rate"], row["wilson95"]
+            ax.bar(x, 100 * p, width * 0.9, color=colours[variant], label=variant if t == 0 else None)
+            ax.errorbar(x, 100 * p, yerr=[[100 * (p - lo)], [100 * (hi - p)]], color="black", capsize=3, lw=1)
+            ax.text(x, 100 * hi + 1.5, f"{row['successes']}/{row['rollouts']}", ha="center", fontsize=7)
+    ax.set_xticks(range(len(tasks)), tasks)
+    ax.set_ylabel("success, % (95 % Wilson interval)")
+    ax.set_ylim(0, 105)
+    ax.set_title("ACT-style policy, 50 demonstrations: vision vs touch")
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    rows = collect_rows([Path(r) for r in args.runs])
+    if not rows:
+        raise SystemExit("no run has both train.json and eval.json")
+    report: dict[str, Any] = {"machine": machine(), "note": args.note}
+    if args.setup:  # what the runs started from (generation times, reference rates), measured elsewhere
+        report["setup"] = json.loads(Path(args.setup).read_text())
+    report["rows"] = rows
+    notes = args.ablation_note or []
+    for k, runs in enumerate(args.ablation_runs or []):
+        report.setdefault("ablations", []).append(
+            {"note": notes[k] if k < len(notes) else "", "rows": collect_rows([Path(r) for r in runs])})
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+    if args.chart:
+        chart(rows, Path(args.chart))
+    for r in rows:
+        lo, hi = r["wilson95"]
+        print(f"| {r['task']} | {r['variant']} | {r['successes']}/{r['rollouts']} = {100 * r['success_rate']:.0f} % "
+              f"({100 * lo:.0f}-{100 * hi:.0f}) | {100 * r['unsafe_rate']:.0f} % | {r['train_s'] / 60:.1f} min "
+              f"| {r['eval_s'] / 60:.1f} min |")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    tr = sub.add_parser("train", help="train one variant on one task's demonstrations")
+    tr.add_argument("--data", required=True, help="dataset of demonstrations (univtac-data generate task)")
+    tr.add_argument("--task", required=True)
+    tr.add_argument("--variant", choices=VARIANTS, required=True)
+    tr.add_argument("--encoder", default=None, help="pretrained encoder checkpoint (vision_encoder)")
+    tr.add_argument("--out", required=True, help="run directory: policy.pt, train.json, train.log")
+    tr.add_argument("--rate-hz", type=float, default=10.0, help="policy rate, Hz (default 10)")
+    tr.add_argument("--chunk", type=int, default=10, help="actions per chunk (default 10: 1 s at 10 Hz)")
+    tr.add_argument("--cameras", default="head,wrist", help="comma-separated cameras, or 'none'")
+    tr.add_argument("--camera-size", default="128x72", help="camera WxH recorded and evaluated at (default 128x72)")
+    tr.add_argument("--camera-input", default="64x36", help="camera WxH the policy's CNN reads, area-resized (default 64x36)")
+    tr.add_argument("--d-model", type=int, default=128)
+    tr.add_argument("--steps", type=int, default=3000)
+    tr.add_argument("--batch-size", type=int, default=32)
+    tr.add_argument("--lr", type=float, default=3e-4)
+    tr.add_argument("--shift-px", type=int, default=4, help="random-shift augmentation of the cameras, px")
+    tr.add_argument("--stride", type=int, default=1, help="every n-th recorded frame starts a sample")
+    tr.add_argument("--max-episodes", type=int, default=None)
+    tr.add_argument("--cache", default=None, help="file caching the read samples (shared by the variants)")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--threads", type=int, default=1)
+    ev = sub.add_parser("evaluate", help="univtac-data evaluate a trained run")
+    ev.add_argument("--run", required=True)
+    ev.add_argument("--episodes", type=int, default=100)
+    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--threads", type=int, default=1)
+    ev.add_argument("--ensemble-k", type=float, default=None,
+                    help="override the temporal-ensembling weight k (negative: the newest prediction weighs most)")
+    rp = sub.add_parser("report", help="JSON, chart and table rows from evaluated runs")
+    rp.add_argument("--runs", nargs="+", required=True)
+    rp.add_argument("--json", required=True)
+    rp.add_argument("--chart", default=None)
+    rp.add_argument("--note", default="")
+    rp.add_argument("--ablation-runs", nargs="+", action="append", default=None,
+                    help="a group of runs reported apart (e.g. another rollout setting or rate); repeat for more")
+    rp.add_argument("--ablation-note", action="append", default=None, help="a note per --ablation-runs group")
+    rp.add_argument("--setup", default=None, help="JSON file stored as the report's 'setup' (e.g. generation times)")
+    args = parser.parse_args(argv)
+    return {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report}[args.command](args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,205 @@
+"""The policy-baseline recipe (examples/act_policy.py, examples/train_policy.py): demonstrations subsampled to
+the policy's rate, is_pad masking, temporal ensembling, training on a tiny corpus, checkpoints that reload
+to identical outputs, the frozen encoder staying frozen, and a trained policy evaluated end to end through
+``univtac-data evaluate --policy act_policy:from_env --rate-hz``."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from univtac_data import DatasetWriter
+from univtac_data.envs.evaluate import step_limit
+from univtac_data.envs.task_env import TaskEnv
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+if str(EXAMPLES) not in sys.path:
+    sys.path.insert(0, str(EXAMPLES))
+
+from act_policy import (CHECKPOINT_ENV, ChunkPolicy, PolicyConfig, TemporalEnsembler,  # noqa: E402
+                        load_checkpoint, masked_l1, save_checkpoint)
+from train_policy import load_demos, train  # noqa: E402
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+TASK = "pull_out_key"
+
+
+def tiny_config(variant: str = "vision_tactile", **kw) -> PolicyConfig:
+    return PolicyConfig(variant=variant, cameras=(), chunk=4, rate_hz=10.0, d_model=32, heads=2, encoder_layers=1,
+                        decoder_layers=1, feedforward=64, dropout=0.0, **kw)
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    """One Pull-out Key demonstration at 50 Hz, without cameras."""
+    root = tmp_path_factory.mktemp("policy") / "ds"
+    outcome = run_expert(TaskEpisodeSpec(TASK, 0, TaskConfig(cameras=False)))
+    assert outcome.episode is not None
+    DatasetWriter.open(root).add(outcome.episode)
+    return root, outcome.episode
+
+
+@pytest.fixture(scope="module")
+def demos(corpus):
+    root, _ = corpus
+    return load_demos(root, TASK, tiny_config(), stride=3, log=lambda _: None)
+
+
+@pytest.fixture(scope="module")
+def trained(demos):
+    torch.set_num_threads(1)
+    net, norm, losses = train(demos, tiny_config(), steps=60, batch_size=16, lr=2e-3, seed=0, shift_px=0,
+                              log=lambda _: None)
+    return net, norm, losses
+
+
+def test_demonstrations_are_subsampled_to_the_policy_rate(corpus, demos):
+    _, episode = corpus
+    actions = episode["robot/action"]
+    n = len(actions)
+    assert demos.demo_rate_hz == 50.0 and demos.subsample == 5
+    t = demos.tensors
+    steps = np.arange(0, n, 3)
+    assert len(demos) == len(steps)
+    for k in (0, 7, len(steps) - 1):
+        s = steps[k]
+        # the target 1 / 10 s ahead is the action recorded 5 frames on: a[s + 4], a[s + 9], ...
+        want = [actions[min(s + 4 + 5 * j, n - 1)] for j in range(4)]
+        assert np.allclose(t["action"][k].numpy(), np.array(want, np.float32))
+        assert t["action_is_pad"][k].tolist() == [s + 4 + 5 * j >= n for j in range(4)]
+        pose = np.concatenate([episode["robot/ee_pose"][s], [episode["robot/gripper_width_m"][s]]])
+        assert np.allclose(t["agent_pos"][k].numpy(), pose, atol=1e-6)
+    assert t["action_is_pad"][-1].any() and not t["action_is_pad"][0].any()
+    assert t["tactile_left"].shape[1:] == (3, 48, 64) and t["tactile_left"].dtype == torch.uint8
+
+
+def test_is_pad_rows_never_count_in_the_loss():
+    gen = torch.Generator().manual_seed(0)
+    pred, target = torch.randn(3, 5, 8, generator=gen), torch.randn(3, 5, 8, generator=gen)
+    is_pad = torch.zeros(3, 5, dtype=torch.bool)
+    is_pad[0, 3:] = True
+    is_pad[2, 1:] = True
+    loss = masked_l1(pred, target, is_pad)
+    by_hand = (pred - target).abs()[~is_pad].mean()
+    assert torch.isclose(loss, by_hand)
+    changed = target.clone()
+    changed[is_pad] += 100.0  # whatever the padding holds
+    assert torch.equal(masked_l1(pred, changed, is_pad), loss)
+    changed[0, 0, 0] += 1.0   # a real action does count
+    assert not torch.isclose(masked_l1(pred, changed, is_pad), loss)
+    assert not torch.isclose(masked_l1(pred, target, torch.zeros_like(is_pad)), loss)
+
+
+def test_temporal_ensembling_weights_every_prediction_for_the_step():
+    k, chunk = 0.5, 3
+    ens = TemporalEnsembler(chunk, k)
+    chunks = [np.full((chunk, 2), 10.0 * (j + 1)) + np.arange(chunk)[:, None] for j in range(5)]
+    assert np.allclose(ens(chunks[0]), chunks[0][0])
+    out = ens(chunks[1])  # step 1: chunk 0's row 1 (older, weight 1) and chunk 1's row 0 (weight e^-k)
+    assert np.allclose(out, (chunks[0][1] + math.exp(-k) * chunks[1][0]) / (1 + math.exp(-k)))
+    out = ens(chunks[2])
+    w = np.exp(-k * np.arange(3))
+    want = (w[0] * chunks[0][2] + w[1] * chunks[1][1] + w[2] * chunks[2][0]) / w.sum()
+    assert np.allclose(out, want)
+    out = ens(chunks[3])  # chunk 0 covers steps 0-2 only: it drops out
+    want = (w[0] * chunks[1][2] + w[1] * chunks[2][1] + w[2] * chunks[3][0]) / w.sum()
+    assert np.allclose(out, want)
+    ens.reset()
+    assert np.allclose(ens(chunks[4]), chunks[4][0])
+    newest = TemporalEnsembler(chunk, -50.0)  # a negative k weights the newest prediction most
+    newest(chunks[0])
+    assert np.allclose(newest(chunks[1]), chunks[1][0])
+
+
+def test_training_on_a_tiny_corpus_lowers_the_loss(trained):
+    _, _, losses = trained
+    assert len(losses) == 60 and all(math.isfinite(x) for x in losses)
+    assert np.mean(losses[-10:]) < 0.7 * np.mean(losses[:10])
+
+
+def test_a_checkpoint_reloads_to_identical_outputs(trained, demos, tmp_path):
+    net, norm, _ = trained
+    save_checkpoint(tmp_path / "policy.pt", net, norm)
+    again, norm2, _ = load_checkpoint(tmp_path / "policy.pt")
+    assert again.config == net.config
+    env = TaskEnv(TASK, cameras=False, rate_hz=10.0)
+    obs, _ = env.reset(seed=1_000_000)
+    env.close()
+    a, b = ChunkPolicy(net, norm), ChunkPolicy(again, norm2)
+    assert np.array_equal(a.predict_chunk(obs), b.predict_chunk(obs))
+    assert a.predict_chunk(obs).shape == (4, 8)
+    action = a.act(obs)
+    assert action.shape == (8,) and abs(np.linalg.norm(action[3:7]) - 1) < 1e-5
+
+
+def test_the_pretrained_encoder_stays_frozen(demos, tmp_path):
+    from pretrain_encoder import save_checkpoint as save_encoder
+    from tactile_encoder import EncoderConfig, TactileEncoder
+
+    torch.manual_seed(1)
+    encoder = TactileEncoder(EncoderConfig())
+    save_encoder(encoder, tmp_path / "encoder.pt", [])
+    config = tiny_config("vision_encoder", encoder=encoder.config.to_dict())
+    cache = type(demos)(dict(demos.tensors), demos.episodes, demos.demo_rate_hz, demos.subsample)
+    net, norm, losses = train(cache, config, steps=5, batch_size=8, lr=1e-3, seed=0, shift_px=0,
+                              encoder_path=str(tmp_path / "encoder.pt"), log=lambda _: None)
+    for name, value in encoder.state_dict().items():  # weights and BatchNorm statistics alike
+        assert torch.equal(net.encoder.state_dict()[name], value), name
+    # features precomputed for training equal the ones the rollout computes from the images
+    images = demos.tensors["tactile_left"][:4].float() / 255.0
+    assert torch.allclose(cache.tensors["feat_left"][:4], encoder.eval().encode(images), atol=1e-5)
+    obs = {"agent_pos": torch.zeros(4, 8), "tactile_left": images,
+           "tactile_right": demos.tensors["tactile_right"][:4].float() / 255.0}
+    feats = {"agent_pos": obs["agent_pos"], "feat_left": cache.tensors["feat_left"][:4],
+             "feat_right": cache.tensors["feat_right"][:4]}
+    with torch.no_grad():
+        assert torch.allclose(net(obs), net(feats), atol=1e-5)
+
+
+def test_rate_hz_keeps_the_step_limit_as_a_time_limit(tmp_path):
+    env = TaskEnv(TASK, cameras=False, rate_hz=10.0)
+    assert step_limit(env) == 60  # 300 steps at 50 Hz: 6 s
+    env.close()
+    run = cli("evaluate", TASK, "--policy", "zero", "--episodes", "1", "--no-cameras", "--rate-hz", "10",
+              "--json", str(tmp_path / "zero.json"))
+    assert run.returncode == 0, run.stderr
+    report = json.loads((tmp_path / "zero.json").read_text())
+    assert report["per_rollout"][0]["steps"] == 60 and report["per_rollout"][0]["reason"] == "step_limit"
+    bad = cli("evaluate", TASK, "--policy", "zero", "--episodes", "1", "--no-cameras", "--rate-hz", "7")
+    assert bad.returncode != 0 and "--rate-hz" in bad.stderr
+
+
+def test_a_trained_policy_runs_through_univtac_data_evaluate(trained, tmp_path):
+    net, norm, _ = trained
+    save_checkpoint(tmp_path / "policy.pt", net, norm)
+    out = tmp_path / "eval.json"
+    run = cli("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras",
+              "--rate-hz", "10", "--json", str(out), extra_env={CHECKPOINT_ENV: str(tmp_path / "policy.pt")})
+    assert run.returncode == 0, run.stderr
+    report = json.loads(out.read_text())
+    assert report["rollouts"] == 1 and report["errors"] == 0, report["per_rollout"]
+    assert 1 <= report["per_rollout"][0]["steps"] <= 60
+    newest = cli("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras",
+                 "--rate-hz", "10", extra_env={CHECKPOINT_ENV: str(tmp_path / "policy.pt"),
+                                               "UNIVTAC_POLICY_ENSEMBLE_K": "-10"})
+    assert newest.returncode == 0 and "errors 0" in newest.stdout, newest.stderr
+    missing = cli("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras",
+                  extra_env={CHECKPOINT_ENV: ""})
+    assert missing.returncode != 0 and CHECKPOINT_ENV in missing.stderr
+
+
+def cli(*args: str, extra_env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "MUJOCO_GL": "egl", **(extra_env or {})}
+    env["PYTHONPATH"] = str(EXAMPLES) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "univtac_data.cli.main", *args], capture_output=True, text=True,
+                          timeout=600, env=env)

@@ -428,7 +428,7 @@ def test_compiled_stick_slip_equals_the_array_code(slide_mm: tuple[float, float]
     window, against the array code on the same operator: stuck, partial slip, gross slide and gross twist,
     no load."""
     from univtac_data.generators.tactile.shear import (
-        _NO_CELLS, _NO_MATRIX, _NO_SPECTRA, CG_TOLERANCE, SLIDE_TOLERANCE, SLIP_ROUND_TOLERANCE, _DenseCells,
+        _NO_MATRIX, _NO_SPECTRA, CG_TOLERANCE, SLIDE_TOLERANCE, SLIP_ROUND_TOLERANCE, _DenseCells,
         _stick_slip, _stick_slip_cells, _WindowCells,
     )
 
@@ -443,10 +443,10 @@ def test_compiled_stick_slip_equals_the_array_code(slide_mm: tuple[float, float]
     rx, ry = x[cols] - float((p * x[cols]).sum() / total_p), x[rows] - float((p * x[rows]).sum() / total_p)
     if operator == "dense":
         op = _DenseCells(rows, cols, field.shape, dx, dx, material)
-        compiled_op = (op.matrix, _NO_SPECTRA, (1, 1), (1, 1), _NO_CELLS, _NO_CELLS)
+        compiled_op = (op.matrix, _NO_SPECTRA, (1, 1), op.shape, op.rows, op.cols, op.inverse)
     else:
         op = _WindowCells(field > 0.0, rows, cols, dx, dx, material)
-        compiled_op = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols)
+        compiled_op = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols, op.inverse)
     s = np.asarray(slide_mm, dtype=np.float64)
     q, lam_s, lam_t, q_s, q_t = _stick_slip(op, p, rx, ry, s, twist_rad, material.friction, dx * dx, total_p, 8)
     none = np.zeros(0)

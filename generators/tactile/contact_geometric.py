@@ -87,25 +87,19 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
     """Geometric contact of the gap field (ny, nx) mm on ``grid``; see the module docstring. ``gap_box``:
     (rows, cols) outside which the gap is positive, if known: the overlap is looked for only there."""
     h, w = grid.shape
-    if gap_box is None:
-        local = gap_mm < 0.0
-        r_off = c_off = 0
-    else:
-        local = gap_mm[gap_box] < 0.0
-        r_off, c_off = gap_box[0].indices(h)[0], gap_box[1].indices(w)[0]
     depth = np.zeros(grid.shape)
     pressure = np.zeros(grid.shape)
     mask = np.zeros(grid.shape, dtype=bool)
-    rows = np.flatnonzero(local.any(axis=1))
-    if rows.size == 0:
-        return ContactResult(depth, pressure, mask, 0.0, box=(slice(0, 0), slice(0, 0)))
-    cols = np.flatnonzero(local[rows[0] : rows[-1] + 1].any(axis=0)) + c_off
-    rows += r_off
     gap = np.ascontiguousarray(gap_mm, dtype=np.float64)
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    labels, deepest = _pieces(gap, r0, r1, c0, c1)
-    stats = _contact_stats(gap, r0, r1, c0, c1, labels, deepest, config.contact_fraction)
-    count, sum_h, sum_root_h, rim_sum, rim_count = stats
+    (s0, s1), (t0, t1) = ((0, h), (0, w)) if gap_box is None else (gap_box[0].indices(h)[:2], gap_box[1].indices(w)[:2])
+    runs = _overlap_runs(gap, s0, s1, t0, t1)
+    if runs.shape[1] == 0:
+        return ContactResult(depth, pressure, mask, 0.0, box=(slice(0, 0), slice(0, 0)))
+    piece, deepest = _run_pieces(runs)
+    stats = _contact_pass(gap, runs, piece, deepest, config.contact_fraction, depth, pressure, mask)
+    count, sum_h, sum_root_h, rim_sum, rim_count, rim_pixels = stats
+    r0, r1 = int(runs[0, 0]), int(runs[0, -1]) + 1
+    c0, c1 = int(runs[1].min()), int(runs[2].max())
     e_star = material.youngs_modulus_mpa / (1.0 - material.poisson_ratio**2)
     cell = grid.cell_area_mm2
     radius = np.sqrt(count * cell / np.pi)  # equivalent contact radius of each piece, mm
@@ -120,88 +114,149 @@ def solve_geometric(gap_mm: np.ndarray, grid: SensorGrid, material: Material, co
     win = (slice(max(r0 - grow_r, 0), min(r1 + grow_r, h)), slice(max(c0 - grow_c, 0), min(c1 + grow_c, w)))
     # blocks of the sink-in: at least EXTERIOR_BLOCKS_PER_RADIUS across the smallest contact radius
     block = max(1, int(float(radius.min()) / (EXTERIOR_BLOCKS_PER_RADIUS * max(grid.dx_mm, grid.dy_mm))))
-    _fill(gap, win[0].start, win[0].stop, win[1].start, win[1].stop, r0, c0, labels, deepest,
-          config.contact_fraction, pressure_scale, radius, rim, blend, sphere, punch, grid.dy_mm, grid.dx_mm,
-          block, depth, pressure, mask)
+    _fill(gap, win[0].start, win[0].stop, win[1].start, win[1].stop, runs, piece, rim_pixels, pressure_scale,
+          radius, rim, blend, sphere, punch, grid.dy_mm, grid.dx_mm, block, depth, pressure, mask)
     return ContactResult(depth, pressure, mask, float(force.sum()), box=win)
 
 
 @numba.njit(cache=True, nogil=True)
-def _pieces(gap: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
-    # 8-connected pieces of the overlap (gap < 0) in the box: labels (box) int32, -1 off the overlap, and each
-    # piece's deepest overlap (mm), by a depth-first flood fill
-    h, w = r1 - r0, c1 - c0
-    labels = np.full((h, w), -1, np.int32)
-    deepest = np.zeros(16)
-    stack = np.empty(h * w, np.int64)
+def _overlap_runs(gap: np.ndarray, s0: int, s1: int, t0: int, t1: int) -> np.ndarray:  # pragma: no cover
+    # the overlap (gap < 0) in rows s0:s1, cols t0:t1 as runs along the rows, in raster order: (3, n) int64 of
+    # image row, first column and the column past the last
+    out = np.empty((3, (s1 - s0) * ((t1 - t0 + 1) // 2)), np.int64)
     n = 0
-    for i in range(h):
-        for j in range(w):
-            if labels[i, j] >= 0 or gap[r0 + i, c0 + j] >= 0.0:
+    for i in range(s0, s1):
+        row = gap[i]
+        j = t0
+        while j < t1:
+            if row[j] >= 0.0:
+                j += 1
                 continue
-            if n == deepest.size:
-                grown = np.zeros(2 * n)
-                grown[:n] = deepest
-                deepest = grown
-            labels[i, j] = n
-            top, low = 1, 0.0
-            stack[0] = i * w + j
-            while top > 0:
-                top -= 1
-                k = stack[top]
-                a, b = k // w, k % w
-                low = max(low, -gap[r0 + a, c0 + b])
-                for da in range(-1, 2):
-                    for db in range(-1, 2):
-                        p, q = a + da, b + db
-                        if 0 <= p < h and 0 <= q < w and labels[p, q] < 0 and gap[r0 + p, c0 + q] < 0.0:
-                            labels[p, q] = n
-                            stack[top] = p * w + q
-                            top += 1
-            deepest[n] = low
+            start = j
+            while j < t1 and row[j] < 0.0:
+                j += 1
+            out[0, n], out[1, n], out[2, n] = i, start, j
             n += 1
-    return labels, deepest[:n].copy()
+    return out[:, :n]
 
 
 @numba.njit(cache=True, nogil=True)
-def _contact_stats(gap: np.ndarray, r0: int, r1: int, c0: int, c1: int, labels: np.ndarray, deepest: np.ndarray,
-                   fraction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
-    # per piece: contact cells (o > fraction d), sum of h = o - d / 2 and of sqrt(h) over them, and the sum and
-    # count of the gel's level on the contact's rim (each side of a contact cell that faces a cell out of contact)
-    n = deepest.size
-    count, sum_h, sum_root, rim_sum, rim_count = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
-    h, w = r1 - r0, c1 - c0
-    for i in range(h):
-        for j in range(w):
-            k = labels[i, j]
-            if k < 0:
-                continue
-            level = fraction * deepest[k]
-            o = -gap[r0 + i, c0 + j]
+def _run_pieces(runs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    # 8-connected pieces of the runs: each run's piece (n,) int32, numbered in the raster order of each piece's
+    # first pixel (union-find, each set's root its first run), and a zeroed array for each piece's deepest
+    # overlap (_contact_pass fills it). Runs of consecutive rows touch when their column spans overlap or meet
+    # at a corner.
+    n = runs.shape[1]
+    parent = np.arange(n)
+    lo = 0  # first run of the previous row
+    i = 0
+    while i < n:
+        row = runs[0, i]
+        end = i
+        while end < n and runs[0, end] == row:
+            end += 1
+        prev_lo, prev_hi = lo, i
+        if prev_hi > prev_lo and runs[0, prev_lo] != row - 1:
+            prev_lo = prev_hi  # the previous run row is not adjacent
+        a = prev_lo
+        for b in range(i, end):
+            while a < prev_hi and runs[2, a] < runs[1, b]:  # ends left of b's first column - 1
+                a += 1
+            c = a
+            while c < prev_hi and runs[1, c] <= runs[2, b]:
+                ra, rb = c, b
+                while parent[ra] != ra:
+                    ra = parent[ra]
+                while parent[rb] != rb:
+                    rb = parent[rb]
+                if ra < rb:
+                    parent[rb] = ra
+                elif rb < ra:
+                    parent[ra] = rb
+                c += 1
+        lo, i = i, end
+    piece = np.empty(n, np.int32)
+    count = 0
+    for k in range(n):
+        r = k
+        while parent[r] != r:
+            r = parent[r]
+        parent[k] = r
+        if r == k:
+            piece[k] = count
+            count += 1
+        else:
+            piece[k] = piece[r]
+    return piece, np.zeros(count)
+
+
+@numba.njit(cache=True, nogil=True)
+def _contact_pass(gap: np.ndarray, runs: np.ndarray, piece: np.ndarray, deepest: np.ndarray, fraction: float,
+                  depth: np.ndarray, pressure: np.ndarray, mask: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    # fills ``deepest`` (each piece's deepest overlap, mm), then per piece: contact cells (o > fraction d), sum
+    # of h = o - d / 2 and of sqrt(h) over them, and the sum and count of the gel's level on the contact's rim
+    # (each side of a contact cell that faces a cell out of contact). Contact cells get the mask, the overlap as
+    # depth and sqrt(h) as pressure (_fill scales it). Also the contact's rim pixels (2, k) in raster order:
+    # contact pixels with a neighbour inside the image out of contact, and their piece (3, k).
+    n = runs.shape[1]
+    for r in range(n):
+        i, k = runs[0, r], piece[r]
+        row = gap[i]
+        low = deepest[k]
+        for j in range(runs[1, r], runs[2, r]):
+            low = max(low, -row[j])
+        deepest[k] = low
+    m = deepest.size
+    count, sum_h, sum_root, rim_sum, rim_count = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
+    h, w = gap.shape
+    total = 0
+    for r in range(n):
+        total += runs[2, r] - runs[1, r]
+    rim_pixels = np.empty((3, total), np.int32)
+    n_rim = 0
+    for r in range(n):
+        i, k = runs[0, r], piece[r]
+        level = fraction * deepest[k]
+        half = 0.5 * deepest[k]
+        for j in range(runs[1, r], runs[2, r]):
+            o = -gap[i, j]
             if o <= level:
                 continue
             count[k] += 1.0
-            above = o - 0.5 * deepest[k]
+            above = o - half
+            root = 0.0
             if above > 0.0:
                 sum_h[k] += above
-                sum_root[k] += np.sqrt(above)
+                root = np.sqrt(above)
+                sum_root[k] += root
+            mask[i, j] = True
+            depth[i, j] = o
+            pressure[i, j] = root
             # the rim's level, across each side out of contact: where the object goes on beyond the contact (its
             # overlap there is positive) the surface crosses fraction d between the two pixels; where it ends (a
-            # sharp edge, as a punch's), the gel is held at this pixel's overlap
+            # sharp edge, as a punch's, or the image's border), the gel is held at this pixel's overlap. A
+            # 4-neighbour in overlap belongs to this pixel's piece.
+            on_rim = False
             for p, q in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
-                outside_o = 0.0
                 if 0 <= p < h and 0 <= q < w:
-                    outside_o = -gap[r0 + p, c0 + q]
-                    if labels[p, q] == k and outside_o > level:
+                    outside_o = -gap[p, q]
+                    if outside_o > level:
                         continue
-                rim_sum[k] += level if outside_o > 0.0 else o
+                    on_rim = True
+                    rim_sum[k] += level if outside_o > 0.0 else o
+                else:
+                    rim_sum[k] += o
                 rim_count[k] += 1.0
-    return count, sum_h, sum_root, rim_sum, rim_count
+            if on_rim:
+                rim_pixels[0, n_rim], rim_pixels[1, n_rim], rim_pixels[2, n_rim] = i, j, k
+                n_rim += 1
+    return count, sum_h, sum_root, rim_sum, rim_count, rim_pixels[:, :n_rim]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _take(near_r: np.ndarray, near_c: np.ndarray, dist2: np.ndarray, i: int, j: int, p: int, q: int, k: int,
-          centre: float, dy: float, dx: float) -> None:  # pragma: no cover (compiled)
+def _take(near_r: np.ndarray, near_c: np.ndarray, near_piece: np.ndarray, dist2: np.ndarray, i: int, j: int, p: int,
+          q: int, k: int, centre: float, dy: float, dx: float) -> None:  # pragma: no cover (compiled)
     # block (i, j) takes the rim pixel (window row, col) nearest to block (p, q) when it is nearer to its own
     # centre (pixel i k + centre, j k + centre) than its current one (mm^2)
     if p < 0 or q < 0 or p >= near_r.shape[0] or q >= near_r.shape[1]:
@@ -214,69 +269,62 @@ def _take(near_r: np.ndarray, near_c: np.ndarray, dist2: np.ndarray, i: int, j: 
     if d < dist2[i, j]:
         near_r[i, j] = a
         near_c[i, j] = near_c[p, q]
+        near_piece[i, j] = near_piece[p, q]
         dist2[i, j] = d
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, r0: int, c0: int, labels: np.ndarray,
-          deepest: np.ndarray, fraction: float, pressure_scale: np.ndarray, radius: np.ndarray, rim: np.ndarray,
+def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, runs: np.ndarray, run_piece: np.ndarray,
+          rim_pixels: np.ndarray, pressure_scale: np.ndarray, radius: np.ndarray, rim: np.ndarray,
           blend: np.ndarray, sphere: np.ndarray, punch: np.ndarray, dy: float, dx: float, k: int,
           depth: np.ndarray, pressure: np.ndarray, mask: np.ndarray) -> None:  # pragma: no cover (compiled)
-    # rows w0:w1, cols v0:v1 of the image. Contact cells get the overlap and the Hertz-shaped pressure. The sink-in
-    # is found on k x k blocks of the window: each block takes the piece of the nearest block holding contact
-    # (propagated in raster passes, as in a vector distance transform) and that piece's profile at the distance
-    # between the two blocks' centres less half a block (the rim lies inside the contact block); blocks holding
-    # contact take the rim's overlap. Each pixel off the contact then reads the blocks bilinearly, never less than
-    # its overlap. The sink-in varies over a contact radius, which spans 8 blocks or more, so this costs a
-    # k^2-th of a per-pixel transform and changes the depth by well under a micrometre.
+    # rows w0:w1, cols v0:v1 of the image. Contact cells (already masked, with the overlap as depth) get the
+    # Hertz-shaped pressure. The sink-in is found on k x k blocks of the window: each block takes the piece of
+    # the nearest block holding contact (propagated in raster passes, as in a vector distance transform) and that
+    # piece's profile at the distance between the two blocks' centres less half a block (the rim lies inside the
+    # contact block); blocks holding contact take the rim's overlap. Each pixel off the contact then reads the
+    # blocks bilinearly, never less than its overlap. The sink-in varies over a contact radius, which spans 8
+    # blocks or more, so this costs a k^2-th of a per-pixel transform and changes the depth by well under a
+    # micrometre.
     h, w = w1 - w0, v1 - v0
     ch, cw = -(-h // k), -(-w // k)
     centre = 0.5 * (k - 1)
     near_r = np.full((ch, cw), -1, np.int32)  # nearest rim pixel: window row, col
     near_c = np.full((ch, cw), -1, np.int32)
+    near_piece = np.full((ch, cw), -1, np.int32)  # the piece of that rim pixel
     piece = np.full((ch, cw), -1, np.int32)  # the piece of a block holding contact
     dist2 = np.full((ch, cw), np.inf)
-    lh, lw = labels.shape
-    for i in range(lh):
-        for j in range(lw):
-            p = labels[i, j]
-            if p < 0:
-                continue
-            o = -gap[r0 + i, c0 + j]
-            if o > fraction * deepest[p]:
-                gi, gj = r0 + i, c0 + j
-                mask[gi, gj] = True
-                depth[gi, gj] = o
-                pressure[gi, gj] = pressure_scale[p] * np.sqrt(max(o - 0.5 * deepest[p], 0.0))
+    for r in range(runs.shape[1]):
+        gi, p = runs[0, r], run_piece[r]
+        scale = pressure_scale[p]
+        mask_row, pressure_row = mask[gi], pressure[gi]
+        for gj in range(runs[1, r], runs[2, r]):
+            if mask_row[gj]:
+                pressure_row[gj] *= scale
                 piece[(gi - w0) // k, (gj - v0) // k] = p
-    for i in range(lh):  # rim pixels seed their blocks: each block keeps the one nearest its centre
-        gi = r0 + i
-        for j in range(lw):
-            gj = c0 + j
-            if not mask[gi, gj] or (mask[max(gi - 1, 0), gj] and mask[min(gi + 1, mask.shape[0] - 1), gj]
-                                    and mask[gi, max(gj - 1, 0)] and mask[gi, min(gj + 1, mask.shape[1] - 1)]):
-                continue
-            a, b = (gi - w0) // k, (gj - v0) // k
-            ea, eb = (a * k + centre - (gi - w0)) * dy, (b * k + centre - (gj - v0)) * dx
-            d = ea * ea + eb * eb
-            if d < dist2[a, b]:
-                near_r[a, b], near_c[a, b], dist2[a, b] = gi - w0, gj - v0, d
+    for r in range(rim_pixels.shape[1]):  # rim pixels seed their blocks: each block keeps the one nearest its centre
+        gi, gj = rim_pixels[0, r], rim_pixels[1, r]
+        a, b = (gi - w0) // k, (gj - v0) // k
+        ea, eb = (a * k + centre - (gi - w0)) * dy, (b * k + centre - (gj - v0)) * dx
+        d = ea * ea + eb * eb
+        if d < dist2[a, b]:
+            near_r[a, b], near_c[a, b], near_piece[a, b], dist2[a, b] = gi - w0, gj - v0, rim_pixels[2, r], d
     for i in range(ch):  # down the blocks: from the row above, then along the row both ways
         for j in range(cw):
-            _take(near_r, near_c, dist2, i, j, i - 1, j - 1, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i - 1, j, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i - 1, j + 1, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i, j - 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i - 1, j - 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i - 1, j, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i - 1, j + 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i, j - 1, k, centre, dy, dx)
         for j in range(cw - 2, -1, -1):
-            _take(near_r, near_c, dist2, i, j, i, j + 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i, j + 1, k, centre, dy, dx)
     for i in range(ch - 1, -1, -1):  # and up
         for j in range(cw - 1, -1, -1):
-            _take(near_r, near_c, dist2, i, j, i + 1, j + 1, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i + 1, j, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i + 1, j - 1, k, centre, dy, dx)
-            _take(near_r, near_c, dist2, i, j, i, j + 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i + 1, j + 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i + 1, j, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i + 1, j - 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i, j + 1, k, centre, dy, dx)
         for j in range(1, cw):
-            _take(near_r, near_c, dist2, i, j, i, j - 1, k, centre, dy, dx)
+            _take(near_r, near_c, near_piece, dist2, i, j, i, j - 1, k, centre, dy, dx)
     sink = np.zeros((ch, cw))
     half_pixel = 0.5 * min(dx, dy)  # from a rim pixel's centre to the rim
     last = sphere.size - 2
@@ -284,7 +332,7 @@ def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, r0: int, c0: int,
         for j in range(cw):
             if near_r[i, j] < 0:
                 continue
-            p = labels[near_r[i, j] + w0 - r0, near_c[i, j] + v0 - c0]
+            p = near_piece[i, j]
             if piece[i, j] >= 0:  # a block holding contact: the rim's level
                 sink[i, j] = rim[piece[i, j]]
                 continue

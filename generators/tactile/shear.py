@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numba
 import numpy as np
@@ -85,15 +86,34 @@ class ShearResult:
     state: ContactState
 
 
-def _window(mask: np.ndarray, grow: int) -> tuple[slice, slice]:
+def _window(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], grow: int) -> tuple[slice, slice]:
+    """The window of the cells (``rows``, ``cols``) of a (ny, nx) grid, grown by ``grow`` cells a side (within
+    the grid), each side a length the FFT is fast at."""
     out = []
-    for axis in (1, 0):
-        idx = np.flatnonzero(mask.any(axis=axis))
-        n = mask.shape[1 - axis]
-        size = min(n, sfft.next_fast_len(idx[-1] + 1 - idx[0] + 2 * grow))
-        start = int(np.clip((idx[0] + idx[-1] + 1 - size) // 2, 0, n - size))
+    for idx, n in ((rows, shape[0]), (cols, shape[1])):
+        first, last = int(idx.min()), int(idx.max())
+        size = min(n, sfft.next_fast_len(last + 1 - first + 2 * grow))
+        start = int(np.clip((first + last + 1 - size) // 2, 0, n - size))
         out.append(slice(start, start + size))
     return out[0], out[1]
+
+
+class _Preconditioned:
+    """The preconditioner both cell operators share (so both solve with the same iterates): ``circulant_inverse``
+    over the window around the contact's cells."""
+
+    def _set_preconditioner(self, rows: np.ndarray, cols: np.ndarray, grid_shape: tuple[int, int], dx: float,
+                            dy: float, material: Material, thickness_mm: float | None) -> tuple[slice, slice]:
+        win = _window(rows, cols, grid_shape, 2)
+        self.shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
+        self.rows, self.cols = rows - win[0].start, cols - win[1].start
+        self.inverse = circulant_inverse(self.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio,
+                                         thickness_mm)
+        return win
+
+    def precondition(self, r: np.ndarray) -> np.ndarray:
+        """The preconditioner applied to a residual ``r`` (2, m) of the contact's cells."""
+        return _precondition_cells(self.inverse, self.shape, self.rows, self.cols, r.reshape(-1)).reshape(2, -1)
 
 
 # Contacts of at most this many cells get the dense operator below; larger ones the FFT operator. Both run in
@@ -103,13 +123,14 @@ def _window(mask: np.ndarray, grow: int) -> tuple[slice, slice]:
 DENSE_MAX_CELLS = 300
 
 
-class _DenseCells:
+class _DenseCells(_Preconditioned):
     """Traction on the contact cells (2, m) MPa -> in-plane displacement of those cells (2, m) mm, as one
     float32 matrix: on the few hundred cells of a typical contact a matrix-vector product takes
     microseconds, where each FFT convolution pays tens of microseconds of call overhead."""
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, grid_shape: tuple[int, int], dx: float, dy: float,
                  material: Material, thickness_mm: float | None = None) -> None:
+        self._set_preconditioner(rows, cols, grid_shape, dx, dy, material, thickness_mm)
         # the matrix depends only on the cells' relative positions: a contact that keeps its shape from one
         # frame to the next (about half the frames) reuses it
         rows, cols = rows - rows.min(), cols - cols.min()
@@ -159,19 +180,17 @@ def _fill_dense_matrix(rows: np.ndarray, cols: np.ndarray, xx: np.ndarray, xy: n
     return matrix
 
 
-class _WindowCells:
+class _WindowCells(_Preconditioned):
     """The same map as ``_DenseCells`` by FFT convolution over the window around the contact, for contacts
     too large for a matrix."""
 
     def __init__(self, contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
                  material: Material, thickness_mm: float | None = None) -> None:
-        win = _window(contact_mask, 2)
-        self.shape = (win[0].stop - win[0].start, win[1].stop - win[1].start)
+        self._set_preconditioner(rows, cols, contact_mask.shape, dx, dy, material, thickness_mm)
         ks = kernel_set(self.shape, dx, dy, material.youngs_modulus_mpa, material.poisson_ratio, thickness_mm)
         # single precision: the solve stops at a relative residual of 1e-4, far above float32's 1e-7
         self.xx, self.xy, self.yy = ks.tangential_single()
         self.pad = ks.pad_shape
-        self.rows, self.cols = rows - win[0].start, cols - win[1].start
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         field = np.zeros((2, *self.shape), np.float32)
@@ -181,6 +200,58 @@ class _WindowCells:
         fx, fy = padded_spectrum(field, self.pad)
         spectrum = np.stack([self.xx * fx + self.xy * fy, self.xy * fx + self.yy * fy])
         return padded_inverse(spectrum, self.pad, self.shape)[:, self.rows, self.cols]
+
+
+@lru_cache(maxsize=64)
+def circulant_inverse(shape: tuple[int, int], dx: float, dy: float, e_mpa: float, nu: float,
+                      thickness_mm: float | None = None) -> np.ndarray:
+    """(3, ny, nx // 2 + 1) float32 (xx, xy, yy) multipliers of the rfft2 over the window ``shape`` (ny, nx)
+    cells of ``dx x dy`` mm that approximately invert the tangential operator: the inverse, frequency by
+    frequency, of the circulant matrix that keeps the influence coefficients within half a window of each cell
+    (Strang's preconditioner for Toeplitz systems). The operator on a contact's cells is that matrix with the
+    far coefficients wrapped and the cells off the contact removed, so this preconditioned conjugate gradient
+    takes 2 to 3 times fewer iterations (measured on the task recordings) for a transform a quarter the size of
+    the operator's. Eigenvalues below a thousandth of the largest are raised to it, so the multipliers stay
+    positive definite."""
+    ny, nx = shape
+    xx, xy, yy = kernel_set(shape, dx, dy, e_mpa, nu, thickness_mm).tangential_centred()
+    oy, ox = np.arange(ny), np.arange(nx)
+    oy, ox = np.where(oy <= ny // 2, oy, oy - ny), np.where(ox <= nx // 2, ox, ox - nx)
+    a, b, d = (np.fft.rfft2(k[(ny - 1 + oy)[:, None], (nx - 1 + ox)[None, :]].astype(np.float64)).real
+               for k in (xx, xy, yy))
+    # the symmetric 2 x 2 [[a, b], [b, d]] at each frequency, through its eigenvalues
+    mean, radius = 0.5 * (a + d), np.hypot(0.5 * (a - d), b)
+    floor = 1e-3 * float((mean + radius).max())
+    big, small = np.maximum(mean + radius, floor), np.maximum(mean - radius, floor)
+    angle = 0.5 * np.arctan2(2.0 * b, a - d)
+    c, s_ = np.cos(angle), np.sin(angle)
+    inv_big, inv_small = 1.0 / big, 1.0 / small
+    out = np.stack([c * c * inv_big + s_ * s_ * inv_small, c * s_ * (inv_big - inv_small),
+                    s_ * s_ * inv_big + c * c * inv_small]).astype(np.float32)
+    out.flags.writeable = False
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _precondition_cells(inverse: np.ndarray, window: tuple[int, int], rows: np.ndarray, cols: np.ndarray,
+                        r: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
+    # ``circulant_inverse`` on a flattened (2 m,) residual of the cells (rows, cols) of the window: scattered on
+    # the window, transformed, multiplied, transformed back and gathered
+    m = rows.size
+    field = np.zeros((2, window[0], window[1]), np.float32)
+    for i in range(m):
+        field[0, rows[i], cols[i]] = r[i]
+        field[1, rows[i], cols[i]] = r[m + i]
+    spectrum = np.fft.rfft2(field)
+    fx, fy = spectrum[0].copy(), spectrum[1].copy()
+    spectrum[0] = inverse[0] * fx + inverse[1] * fy
+    spectrum[1] = inverse[1] * fx + inverse[2] * fy
+    grid = np.fft.irfft2(spectrum, s=(window[0], window[1]))
+    out = np.empty(2 * m)
+    for i in range(m):
+        out[i] = grid[0, rows[i], cols[i]]
+        out[m + i] = grid[1, rows[i], cols[i]]
+    return out
 
 
 CellOperator = Callable[[np.ndarray], np.ndarray]
@@ -211,10 +282,11 @@ SLIP_ROUND_TOLERANCE = 1e-2
 def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_TOLERANCE,
         max_iter: int = 200, start: np.ndarray | None = None) -> np.ndarray:
     """Solve op(q) = rhs on the ``active`` contact cells (m,) bool (q = 0 on the others) by conjugate
-    gradient; q and rhs are (2, m). ``start``: an initial guess (used on ``active``). Stops when the residual
-    is ``tol`` of the right-hand side, so a good guess saves iterations without changing what "converged"
-    means."""
+    gradient, preconditioned with ``op.precondition`` when the operator has one; q and rhs are (2, m).
+    ``start``: an initial guess (used on ``active``). Stops when the residual is ``tol`` of the right-hand
+    side, so a good guess or a preconditioner saves iterations without changing what "converged" means."""
     keep = active.astype(np.float64)
+    precondition = getattr(op, "precondition", None)
     b = rhs * keep
     if start is None or not b.any():   # a zero load has the zero solution, whatever the guess
         q = np.zeros_like(b)
@@ -222,22 +294,27 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
     else:
         q = start * keep
         r = b - op(q) * keep
-    d = r.copy()
     rr = float(np.vdot(r, r))
     stop = tol * tol * max(float(np.vdot(b, b)), 1e-300)
+    if rr <= stop:
+        return q
+    z = r if precondition is None else precondition(r) * keep
+    d = z.copy()
+    rz = float(np.vdot(r, z))
     for _ in range(max_iter):
-        if rr <= stop:
-            break
         ad = op(d) * keep
         curvature = float(np.vdot(d, ad))
         if curvature <= 0.0:   # the direction underflowed in single precision: nothing left to gain
             break
-        alpha = rr / curvature
+        alpha = rz / curvature
         q += alpha * d
         r -= alpha * ad
-        rr_new = float(np.vdot(r, r))
-        d = r + (rr_new / rr) * d
-        rr = rr_new
+        if float(np.vdot(r, r)) <= stop:
+            break
+        z = r if precondition is None else precondition(r) * keep
+        rz_new = float(np.vdot(r, z))
+        d = z + (rz_new / rz) * d
+        rz = rz_new
     return q
 
 
@@ -268,9 +345,10 @@ def _apply_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], 
 
 @numba.njit(cache=True, nogil=True)
 def _cg_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], window: tuple[int, int],
-              rows: np.ndarray, cols: np.ndarray, keep: np.ndarray, rhs: np.ndarray, start: np.ndarray, tol: float,
-              max_iter: int) -> np.ndarray:  # pragma: no cover (compiled)
-    # _cg's iteration on flattened (2 m,) vectors with the operator of _apply_cells; an empty ``start``: none
+              rows: np.ndarray, cols: np.ndarray, inverse: np.ndarray, keep: np.ndarray, rhs: np.ndarray,
+              start: np.ndarray, tol: float, max_iter: int) -> np.ndarray:  # pragma: no cover (compiled)
+    # _cg's iteration on flattened (2 m,) vectors with the operator of _apply_cells, preconditioned with
+    # _precondition_cells; an empty ``start``: none
     b = rhs * keep
     if start.size == 0 or not b.any():
         q = np.zeros(b.size)
@@ -278,22 +356,27 @@ def _cg_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], win
     else:
         q = start * keep
         r = b - _apply_cells(matrix, spectra, pad, window, rows, cols, q) * keep
-    d = r.copy()
     rr = np.dot(r, r)
     stop = tol * tol * max(np.dot(b, b), 1e-300)
+    if rr <= stop:
+        return q
+    z = _precondition_cells(inverse, window, rows, cols, r) * keep
+    d = z.copy()
+    rz = np.dot(r, z)
     for _ in range(max_iter):
-        if rr <= stop:
-            break
         ad = _apply_cells(matrix, spectra, pad, window, rows, cols, d) * keep
         curvature = np.dot(d, ad)
         if curvature <= 0.0:
             break
-        alpha = rr / curvature
+        alpha = rz / curvature
         q += alpha * d
         r -= alpha * ad
-        rr_new = np.dot(r, r)
-        d = r + (rr_new / rr) * d
-        rr = rr_new
+        if np.dot(r, r) <= stop:
+            break
+        z = _precondition_cells(inverse, window, rows, cols, r) * keep
+        rz_new = np.dot(r, z)
+        d = z + (rz_new / rz) * d
+        rz = rz_new
     return q
 
 
@@ -352,15 +435,15 @@ def _stick_slip(op: CellOperator, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
 
 @numba.njit(cache=True, nogil=True)
 def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], window: tuple[int, int],
-                      win_rows: np.ndarray, win_cols: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
+                      win_rows: np.ndarray, win_cols: np.ndarray, inverse: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
                       s_x: float, s_y: float, theta: float, mu: float, area: float, total_p: float,
                       slip_rounds: int, cg_tol: float, round_tol: float, slide_tol: float, guess_s: np.ndarray,
                       guess_t: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
     # _stick_slip compiled, on the operator of _apply_cells (the dense matrix, or with an empty matrix the FFT
-    # over the window): its dozens of array calls a round, and each FFT's call overhead, cost more than the
-    # arithmetic on a contact's few hundred or thousand cells. Vectors are flattened (2 m,): x components,
-    # then y; an empty guess: none.
-    op = (matrix, spectra, pad, window, win_rows, win_cols)
+    # over the window, preconditioned with ``inverse``): its dozens of array calls a round, and each FFT's call
+    # overhead, cost more than the arithmetic on a contact's few hundred or thousand cells. Vectors are
+    # flattened (2 m,): x components, then y; an empty guess: none.
+    op = (matrix, spectra, pad, window, win_rows, win_cols, inverse)
     m = p.size
     every = np.ones(2 * m)
     q = np.zeros(2 * m)
@@ -414,7 +497,7 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
         else:
             for i in range(m):
                 keep[i] = keep[m + i] = 0.0 if sliding[i] else 1.0
-            pushed = _apply_cells(*op, q_slip)
+            pushed = _apply_cells(matrix, spectra, pad, window, win_rows, win_cols, q_slip)
             q = q_slip + _cg_cells(*op, keep, target - pushed, q - q_slip, tol, 200)
         solved_loose = tol == round_tol
     return q.reshape(2, m), lam_s, lam_t, q_s.reshape(2, m), q_t.reshape(2, m)
@@ -423,7 +506,6 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
 # the operator arguments of _stick_slip_cells that the other operator leaves empty
 _NO_MATRIX = np.zeros((0, 0), np.float32)
 _NO_SPECTRA = np.zeros((3, 1, 1), np.complex64)
-_NO_CELLS = np.zeros(0, np.int64)
 
 
 def _warm_start(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
@@ -510,9 +592,9 @@ def solve_shear(
     op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
     guess_s, guess_t = _warm_start(state, shape, rows, cols, s, theta)
     if isinstance(op, _DenseCells):
-        operator = (op.matrix, _NO_SPECTRA, (1, 1), (1, 1), _NO_CELLS, _NO_CELLS)
+        operator = (op.matrix, _NO_SPECTRA, (1, 1), op.shape, op.rows, op.cols, op.inverse)
     else:
-        operator = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols)
+        operator = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols, op.inverse)
     none = np.zeros(0)
     q, lam_s, lam_t, q_s, q_t = _stick_slip_cells(
         *operator, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS, FrameStack
+from univtac_data.generators.scene.frame_stack import FRAME_BUFFERS, PIXEL_FIELDS, BufferPool, FrameStack
 from univtac_data.generators.tactile import (
     ContactConfig, PixelBuffers, demo_gap, render_shaded, sensor_grid, simulate_frame, solve_contact,
 )
@@ -78,6 +78,46 @@ def test_frame_stack_rows_filled_in_place_survive_growth() -> None:
     frames = stack.array()
     assert frames.shape == (6, 3, 4)
     np.testing.assert_array_equal(frames[:, 0, 0], [0, 1, 2, 3, 4, 9])
+
+
+def address(array: np.ndarray) -> int:
+    return int(array.__array_interface__["data"][0])
+
+
+def test_frame_buffers_are_reused_only_when_nothing_refers_to_them() -> None:
+    """An episode's frames stay intact while anything holds them; once released, the next episode of the same
+    shape records into the same memory (no fresh pages)."""
+    shape = (3, 5, 7)   # a shape no other test records, so the shared pool holds nothing of it yet
+    first = FrameStack(capacity=4)
+    for k in range(4):
+        first.append(np.full(shape, k, np.uint8))
+    held = first.array()
+    first_memory = address(held)
+    del first
+    second = FrameStack(capacity=4)
+    for k in range(4):
+        second.append(np.full(shape, 100 + k, np.uint8))
+    assert address(second.array()) != first_memory   # ``held`` still refers to the first buffer
+    np.testing.assert_array_equal(held[:, 0, 0, 0], [0, 1, 2, 3])
+    del held
+    third = FrameStack(capacity=4)
+    third.append(np.zeros(shape, np.uint8))
+    assert address(third.array()) == first_memory
+    np.testing.assert_array_equal(second.array()[:, 0, 0, 0], [100, 101, 102, 103])
+
+
+def test_buffer_pool_keeps_at_most_its_limits_and_clear_forgets() -> None:
+    pool = BufferPool(max_per_shape=2, max_bytes=1000)
+    first = [pool.take((10, 10), np.uint8) for _ in range(3)]   # the third is over max_per_shape: not kept
+    kept = {address(a) for a in first[:2]}
+    assert pool.kept_bytes == 200
+    del first
+    again = [pool.take((10, 10), np.uint8) for _ in range(3)]
+    assert {address(a) for a in again[:2]} == kept   # the two kept buffers come back
+    pool.take((40, 40), np.uint8)   # 1,600 bytes: over max_bytes, not kept
+    assert pool.kept_bytes == 200
+    pool.clear()
+    assert pool.kept_bytes == 0
 
 
 def test_frame_stack_refuses_a_commit_without_a_row_and_a_frame_of_another_shape() -> None:

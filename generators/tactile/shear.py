@@ -89,11 +89,17 @@ class ShearResult:
 def _window(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], grow: int) -> tuple[slice, slice]:
     """The window of the cells (``rows``, ``cols``) of a (ny, nx) grid, grown by ``grow`` cells a side (within
     the grid), each side a length the FFT is fast at."""
+    return _window_of_span(int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()), shape, grow)
+
+
+@lru_cache(maxsize=256)
+def _window_of_span(first_row: int, last_row: int, first_col: int, last_col: int, shape: tuple[int, int],
+                    grow: int) -> tuple[slice, slice]:
+    # cached: a held contact keeps its span for many frames, and the scalar arithmetic below costs tens of us
     out = []
-    for idx, n in ((rows, shape[0]), (cols, shape[1])):
-        first, last = int(idx.min()), int(idx.max())
+    for first, last, n in ((first_row, last_row, shape[0]), (first_col, last_col, shape[1])):
         size = min(n, sfft.next_fast_len(last + 1 - first + 2 * grow))
-        start = int(np.clip((first + last + 1 - size) // 2, 0, n - size))
+        start = min(max((first + last + 1 - size) // 2, 0), n - size)
         out.append(slice(start, start + size))
     return out[0], out[1]
 
@@ -510,21 +516,20 @@ _NO_SPECTRA = np.zeros((3, 1, 1), np.complex64)
 
 def _warm_start(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
                 s: np.ndarray, theta: float) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """Starting points (2, m) for the stuck slide and twist solves from the previous frame's solutions per unit
-    load: the twist's scaled by ``theta``; the slide's scaled by |s| and turned from the direction it was solved
-    for to that of ``s`` (exact for an isotropic operator on a round contact, a close guess otherwise)."""
+    """Starting points, flattened (2 m,), for the stuck slide and twist solves from the previous frame's
+    solutions per unit load: the twist's scaled by ``theta``; the slide's scaled by |s| and turned from the
+    direction it was solved for to that of ``s`` (exact for an isotropic operator on a round contact, a close
+    guess otherwise)."""
     if state is None or not state.in_contact:
         return None, None
     guess_s = guess_t = None
     if state.slide_solution is not None and state.slide_solution.shape[1:] == shape:
-        size = float(np.hypot(*s))
+        size = float(np.hypot(s[0], s[1]))
         if size > 0.0:
-            (ex, ey), (nx_, ny_) = state.slide_direction, s / size
-            cos, sin = ex * nx_ + ey * ny_, ex * ny_ - ey * nx_
-            ux, uy = state.slide_solution[:, rows, cols]
-            guess_s = size * np.stack([cos * ux - sin * uy, sin * ux + cos * uy])
+            (ex, ey), nx_, ny_ = state.slide_direction, s[0] / size, s[1] / size
+            guess_s = _gather_cells(state.slide_solution, rows, cols, ex * nx_ + ey * ny_, ex * ny_ - ey * nx_, size)
     if state.twist_solution is not None and state.twist_solution.shape[1:] == shape and theta != 0.0:
-        guess_t = theta * state.twist_solution[:, rows, cols]
+        guess_t = _gather_cells(state.twist_solution, rows, cols, 1.0, 0.0, theta)
     return guess_s, guess_t
 
 
@@ -535,15 +540,38 @@ def _unit_solutions(state: ContactState | None, shape: tuple[int, ...], rows: np
     :func:`_warm_start`; a load that is zero this frame keeps the previous frame's."""
     carried = state if state is not None and state.in_contact else ContactState()
     slide, direction, twist = carried.slide_solution, carried.slide_direction, carried.twist_solution
-    size = float(np.hypot(*s))
+    size = float(np.hypot(s[0], s[1]))
     if size > 0.0:
-        slide = np.zeros((2, *shape))
-        slide[:, rows, cols] = q_s / size
+        slide = _scatter_cells(shape[0], shape[1], rows, cols, q_s, size)
         direction = (float(s[0] / size), float(s[1] / size))
     if theta != 0.0:
-        twist = np.zeros((2, *shape))
-        twist[:, rows, cols] = q_t / theta
+        twist = _scatter_cells(shape[0], shape[1], rows, cols, q_t, theta)
     return slide, direction, twist
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_cells(field: np.ndarray, rows: np.ndarray, cols: np.ndarray, cos: float, sin: float,
+                  scale: float) -> np.ndarray:  # pragma: no cover (compiled)
+    # ``scale`` times the vectors of ``field`` (2, ny, nx) at the cells, turned by the angle of (cos, sin),
+    # flattened (2 m,): x components, then y (fancy indexing and stacking cost more than the solve's start saves)
+    m = rows.size
+    out = np.empty(2 * m)
+    for i in range(m):
+        ux, uy = field[0, rows[i], cols[i]], field[1, rows[i], cols[i]]
+        out[i] = scale * (cos * ux - sin * uy)
+        out[m + i] = scale * (sin * ux + cos * uy)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_cells(ny: int, nx: int, rows: np.ndarray, cols: np.ndarray, q: np.ndarray,
+                   divisor: float) -> np.ndarray:  # pragma: no cover (compiled)
+    # (2, ny, nx): ``q`` (2, m) / ``divisor`` on the cells, zero elsewhere
+    out = np.zeros((2, ny, nx))
+    for i in range(rows.size):
+        out[0, rows[i], cols[i]] = q[0, i] / divisor
+        out[1, rows[i], cols[i]] = q[1, i] / divisor
+    return out
 
 
 def solve_shear(
@@ -598,8 +626,8 @@ def solve_shear(
     none = np.zeros(0)
     q, lam_s, lam_t, q_s, q_t = _stick_slip_cells(
         *operator, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,
-        SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s.reshape(-1),
-        none if guess_t is None else guess_t.reshape(-1))
+        SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s,
+        none if guess_t is None else guess_t)
     slide_solution, slide_direction, twist_solution = _unit_solutions(state, shape, rows, cols, s, theta, q_s, q_t)
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta

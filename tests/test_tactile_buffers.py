@@ -114,8 +114,16 @@ def test_buffer_pool_keeps_at_most_its_limits_and_clear_forgets() -> None:
     del first
     again = [pool.take((10, 10), np.uint8) for _ in range(3)]
     assert {address(a) for a in again[:2]} == kept   # the two kept buffers come back
-    pool.take((40, 40), np.uint8)   # 1,600 bytes: over max_bytes, not kept
+    pool.take((40, 40), np.uint8)   # 1,600 bytes: over max_bytes even alone, not kept
     assert pool.kept_bytes == 200
+    pool.take((20, 20), np.uint8)   # 400 bytes fit beside the two held (10, 10) buffers
+    assert pool.kept_bytes == 600
+    del again
+    pool.take((30, 20), np.uint8)   # 600 bytes: the free (10, 10) buffers, asked for longest ago, make room
+    assert pool.kept_bytes == 1000
+    held = pool.take((30, 30), np.uint8)   # 900 bytes: every free buffer of another shape is let go
+    assert pool.kept_bytes == 900
+    assert address(pool.take((30, 30), np.uint8)) != address(held)   # held: a new buffer, not kept (limit)
     pool.clear()
     assert pool.kept_bytes == 0
 

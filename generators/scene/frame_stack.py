@@ -24,31 +24,54 @@ class BufferPool:
     episode after episode, so a buffer is handed out again once nothing refers to it any more: no episode,
     array or view of it is alive (its reference count is the pool's own), so a reused buffer can never
     overwrite frames someone still holds. At most ``max_per_shape`` buffers of one shape and ``max_bytes`` in
-    all are kept; ``clear()`` gives the memory back (a long-lived process that is done generating).
+    all are kept (free buffers of the shapes asked for longest ago are let go to make room: a process that
+    records one task after another keeps about one episode's buffers); ``clear()`` gives the memory back (a
+    long-lived process that is done generating).
     """
 
-    def __init__(self, max_per_shape: int = 8, max_bytes: int = 8 << 30) -> None:
+    def __init__(self, max_per_shape: int = 8, max_bytes: int = 3 << 30) -> None:
         self.max_per_shape = max_per_shape
         self.max_bytes = max_bytes
+        # insertion order is the order shapes were last asked for: free buffers of the stalest go first
         self._buffers: dict[tuple[tuple[int, ...], str], list[np.ndarray]] = {}
         self._bytes = 0
         self._lock = threading.Lock()
 
     def take(self, shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
-        """An uninitialised array of ``shape`` and ``dtype``: a kept one that nothing refers to, else a new one
-        (kept while the limits allow)."""
+        """An uninitialised array of ``shape`` and ``dtype``: a kept one that nothing refers to, else a new one,
+        kept if the limits allow once free buffers of other shapes are let go."""
         key = (tuple(shape), np.dtype(dtype).str)
         with self._lock:
-            kept = self._buffers.setdefault(key, [])
+            kept = self._buffers.pop(key, [])
+            self._buffers[key] = kept
             for i in range(len(kept)):
-                # two references: the list's and getrefcount's argument; any view or holder adds one
-                if sys.getrefcount(kept[i]) == 2:
+                if self._free(kept, i):
                     return kept[i]
             buffer = np.empty(shape, dtype)
-            if len(kept) < self.max_per_shape and self._bytes + buffer.nbytes <= self.max_bytes:
-                kept.append(buffer)
-                self._bytes += buffer.nbytes
+            if len(kept) < self.max_per_shape:
+                self._let_go(buffer.nbytes, key)
+                if self._bytes + buffer.nbytes <= self.max_bytes:
+                    kept.append(buffer)
+                    self._bytes += buffer.nbytes
             return buffer
+
+    @staticmethod
+    def _free(kept: list[np.ndarray], i: int) -> bool:
+        # two references: the list's and getrefcount's argument; any view or holder adds one
+        return sys.getrefcount(kept[i]) == 2
+
+    def _let_go(self, nbytes: int, keep: tuple[tuple[int, ...], str]) -> None:
+        """Forget free buffers of shapes other than ``keep``, stalest first, until ``nbytes`` more fit."""
+        for key, kept in list(self._buffers.items()):
+            if self._bytes + nbytes <= self.max_bytes:
+                return
+            if key == keep:
+                continue
+            for i in reversed(range(len(kept))):
+                if self._free(kept, i):
+                    self._bytes -= kept.pop(i).nbytes
+            if not kept:
+                del self._buffers[key]
 
     @property
     def kept_bytes(self) -> int:

@@ -56,9 +56,9 @@ FLAT_MAGNITUDE_BINS = 1  # slopes in the first magnitude bin render as the flat 
 
 @dataclass(frozen=True)
 class _Prepared:
-    """Per image size: ``background`` (H, W, 3) float32 and ``background_u8`` uint8, ``f0`` resized;
-    ``delta`` (B, B, 3, 6) float32, each bin's polynomials minus the flat bin's; ``min_slope``: slopes below it
-    render as the flat gel."""
+    """Per image size: ``background`` (H, W, 3) float64 and ``background_u8`` uint8, ``f0`` resized;
+    ``delta`` (B, B, 3, 6) float64, each bin's polynomials minus the flat bin's; ``min_slope``: slopes below it
+    render as the flat gel. Float64, not float32: the lookup converts nothing then, a quarter faster."""
 
     background: np.ndarray
     background_u8: np.ndarray
@@ -94,8 +94,8 @@ class TaximCalibration:
             bg = zoom(self.f0, (h / ch, w / cw, 1), order=1, grid_mode=True, mode="nearest")
             flat = self.poly[:, 0, (self.bins - 1) // 2]
             # (B, B, 3, 6): a bin's three polynomials side by side, one or two cache lines per lookup
-            delta = np.ascontiguousarray((self.poly - flat[:, None, None, :]).transpose(1, 2, 0, 3), dtype=np.float32)
-            background = np.ascontiguousarray(bg, dtype=np.float32)
+            delta = np.ascontiguousarray((self.poly - flat[:, None, None, :]).transpose(1, 2, 0, 3), dtype=np.float64)
+            background = np.ascontiguousarray(bg, dtype=np.float64)
             u8 = np.clip(np.rint(bg), 0, 255).astype(np.uint8)
             for array in (background, u8, delta):
                 array.setflags(write=False)

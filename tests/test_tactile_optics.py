@@ -166,7 +166,7 @@ def test_fitted_angles_are_within_their_bound() -> None:
 def test_calibrated_fast_path_picks_the_full_lookups_bin_for_every_pixel(method: str) -> None:
     """With a calibration that paints each bin's index, the fast path (fitted angles, exact near bin edges)
     and the full lookup agree on every pixel: contacts whose slopes take every direction, a long cylinder that
-    slopes the whole image, and a steep dome."""
+    slopes the whole image, a steep dome, and slopes along the image's edges."""
     calib = bin_coded_calibration()
     pitch = (MINI.mm_per_px_x, MINI.mm_per_px_y)
     y, x = np.meshgrid((np.arange(240) - 119.5) * MINI.mm_per_px_y, (np.arange(320) - 159.5) * MINI.mm_per_px_x,
@@ -176,12 +176,18 @@ def test_calibrated_fast_path_picks_the_full_lookups_bin_for_every_pixel(method:
     punch = np.where(np.hypot(x - 5.0, y + 3.0) < 2.0, -0.3, 50.0)
     depths = [simulate_frame(MINI, gap, method=method, config=TactileConfig()).depth_mm  # type: ignore[arg-type]
               for gap in (np.minimum(sphere_gap(MINI, 3.0, 0.8, (-6.0, 3.0)), punch), cylinder)]
+    edges = np.zeros((240, 320))  # deformed along the image's top and left edges only: rows 120 on are skipped
+    edges[:120, :40] += np.linspace(0.3, 0.0, 40)[None, :] * (1.0 + 0.5 * np.sin(np.arange(120) / 9.0))[:, None]
+    edges[:30, :] += np.linspace(0.2, 0.0, 30)[:, None]
+    depths.append(edges)
     depths.append(np.maximum(1.5 - 2.0 * (x * x + y * y), 0.0))  # a steep dome: slopes up to 74 deg
-    for depth in depths:
-        fast = calib.render(depth, pitch)
+    images = [calib.render(depth, pitch) for depth in depths]
+    for depth, fast in zip(depths, images):
         np.testing.assert_array_equal(fast, calib.render_lookup(depth, pitch))
-        assert len(np.unique(fast[..., 1])) > 50  # many direction bins
-    assert fast[..., 0].max() >= 100 + 80 and len(np.unique(fast[..., 0])) > 30  # the dome: bins past 58 deg
+    assert min(len(np.unique(fast[..., 1])) for fast in images[:2]) > 50  # many direction bins
+    assert (images[2][120:] == 100).all()  # the undeformed rows keep f0
+    dome = images[-1][..., 0]
+    assert dome.max() >= 100 + 80 and len(np.unique(dome)) > 30  # slope-angle bins past 58 deg
 
 
 def synthetic_calibration():  # type: ignore[no-untyped-def]

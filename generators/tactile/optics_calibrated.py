@@ -166,7 +166,7 @@ def _atan_unit(t: float) -> float:  # pragma: no cover (compiled)
     return t * (_A0 + u * (_A1 + u * (_A2 + u * (_A3 + u * (_A4 + u * (_A5 + u * _A6))))))
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def fitted_angles(g_row: np.ndarray, g_col: np.ndarray, slope_angle: np.ndarray,
                   direction: np.ndarray) -> None:  # pragma: no cover (compiled)
     """Per element of the gradient (``g_row``, ``g_col``), ``slope_angle`` = atan(|g|) in [0, pi/2] and
@@ -193,7 +193,9 @@ def _lookup(depth: np.ndarray, inv_dy: float, inv_dx: float, floor: float, min_s
             out: np.ndarray) -> None:  # pragma: no cover (compiled)
     # out holds f0 already; each deformed pixel whose slope (numpy.gradient's differences: central inside the
     # image, one-sided on its edges) reaches min_slope gets f0 plus its bin's change at its calibration
-    # position. Row by row: the gradient and the fitted angles of the whole row, then the lookups.
+    # position. Row by row, skipping rows with no deformed pixel (a pixel is looked up only if it is deformed
+    # itself): the gradient and the fitted angles of the whole row (a span of it would not vectorise), then the
+    # lookups over the row's deformed span.
     h, w = depth.shape
     inv_mag_width = (bins - 1) / (0.5 * np.pi)
     inv_dir_width = (bins - 1) / (2.0 * np.pi)
@@ -202,9 +204,18 @@ def _lookup(depth: np.ndarray, inv_dy: float, inv_dx: float, floor: float, min_s
     slope_angle, direction = np.empty(w), np.empty(w)
     half_dx = 0.5 * inv_dx
     for i in range(h):
+        depth_row = depth[i]
+        c0 = 0
+        while c0 < w and depth_row[c0] <= floor:
+            c0 += 1
+        if c0 == w:
+            continue
+        c1 = w
+        while depth_row[c1 - 1] <= floor:
+            c1 -= 1
         up, down = max(i - 1, 0), min(i + 1, h - 1)
         sy = inv_dy / (down - up) if down > up else 0.0
-        depth_row, depth_up, depth_down = depth[i], depth[up], depth[down]
+        depth_up, depth_down = depth[up], depth[down]
         for j in range(w):
             g_row[j] = (depth_down[j] - depth_up[j]) * sy
         for j in range(1, w - 1):
@@ -215,7 +226,7 @@ def _lookup(depth: np.ndarray, inv_dy: float, inv_dx: float, floor: float, min_s
         fitted_angles(g_row, g_col, slope_angle, direction)
         y = i * scale_y
         yy = y * y
-        for j in range(w):
+        for j in range(c0, c1):
             if depth_row[j] <= floor:
                 continue
             s2 = g_row[j] * g_row[j] + g_col[j] * g_col[j]

@@ -133,6 +133,63 @@ def test_calibrated_fast_path_equals_the_full_lookup(method: str) -> None:
         assert (fast != calib.background((240, 320))).any()
 
 
+def bin_coded_calibration():  # type: ignore[no-untyped-def]
+    """125 bins whose colour change is their own index: R = slope-angle bin, G = direction bin - 62, B = both
+    summed, on a flat grey f0, so an image reads back every pixel's bin exactly."""
+    from univtac_data.generators.tactile import TaximCalibration
+
+    bins = 125
+    i_mag, i_dir = np.meshgrid(np.arange(bins), np.arange(bins), indexing="ij")
+    poly = np.zeros((3, bins, bins, 6))
+    poly[0, ..., 5], poly[1, ..., 5], poly[2, ..., 5] = i_mag, i_dir, i_mag + i_dir
+    return TaximCalibration(poly=poly, f0=np.full((480, 640, 3), 100.0), pixmm=0.0295)
+
+
+def test_fitted_angles_are_within_their_bound() -> None:
+    """The branch-free arctangents of the fast path, on gradients of every direction and of slopes from
+    0.01 to 100 (0.6 to 89.4 deg), against numpy's."""
+    from univtac_data.generators.tactile.optics_calibrated import ATAN_FIT_ERROR_RAD, BIN_EDGE_RAD, fitted_angles
+
+    rng = np.random.default_rng(0)
+    slope = 10.0 ** rng.uniform(-2.0, 2.0, 200_000)
+    direction = rng.uniform(-np.pi, np.pi, slope.size)
+    g_row, g_col = slope * np.sin(direction), slope * np.cos(direction)
+    g_row[:4], g_col[:4] = (1.0, -1.0, 0.0, 0.0), (0.0, 0.0, 1.0, -1.0)  # the axes
+    angle, direction_fit = np.empty_like(slope), np.empty_like(slope)
+    fitted_angles(g_row, g_col, angle, direction_fit)
+    assert np.abs(angle - np.arctan(np.hypot(g_row, g_col))).max() <= ATAN_FIT_ERROR_RAD
+    assert np.abs(direction_fit - np.arctan2(g_row, g_col)).max() <= ATAN_FIT_ERROR_RAD
+    assert ATAN_FIT_ERROR_RAD < 0.1 * BIN_EDGE_RAD
+
+
+@pytest.mark.parametrize("method", ["geometric", "elastic"])
+def test_calibrated_fast_path_picks_the_full_lookups_bin_for_every_pixel(method: str) -> None:
+    """With a calibration that paints each bin's index, the fast path (fitted angles, exact near bin edges)
+    and the full lookup agree on every pixel: contacts whose slopes take every direction, a long cylinder that
+    slopes the whole image, a steep dome, and slopes along the image's edges."""
+    calib = bin_coded_calibration()
+    pitch = (MINI.mm_per_px_x, MINI.mm_per_px_y)
+    y, x = np.meshgrid((np.arange(240) - 119.5) * MINI.mm_per_px_y, (np.arange(320) - 159.5) * MINI.mm_per_px_x,
+                       indexing="ij")
+    across = -0.5 * x + np.sqrt(0.75) * y
+    cylinder = np.where(np.abs(across) < 3.0, 3.0 - np.sqrt(np.maximum(9.0 - across**2, 0.0)), 50.0) - 0.8
+    punch = np.where(np.hypot(x - 5.0, y + 3.0) < 2.0, -0.3, 50.0)
+    depths = [simulate_frame(MINI, gap, method=method, config=TactileConfig()).depth_mm  # type: ignore[arg-type]
+              for gap in (np.minimum(sphere_gap(MINI, 3.0, 0.8, (-6.0, 3.0)), punch), cylinder)]
+    edges = np.zeros((240, 320))  # deformed along the image's top and left edges only: rows 120 on are skipped
+    edges[:120, :40] += np.linspace(0.3, 0.0, 40)[None, :] * (1.0 + 0.5 * np.sin(np.arange(120) / 9.0))[:, None]
+    edges[:30, :] += np.linspace(0.2, 0.0, 30)[:, None]
+    depths.append(edges)
+    depths.append(np.maximum(1.5 - 2.0 * (x * x + y * y), 0.0))  # a steep dome: slopes up to 74 deg
+    images = [calib.render(depth, pitch) for depth in depths]
+    for depth, fast in zip(depths, images):
+        np.testing.assert_array_equal(fast, calib.render_lookup(depth, pitch))
+    assert min(len(np.unique(fast[..., 1])) for fast in images[:2]) > 50  # many direction bins
+    assert (images[2][120:] == 100).all()  # the undeformed rows keep f0
+    dome = images[-1][..., 0]
+    assert dome.max() >= 100 + 80 and len(np.unique(dome)) > 30  # slope-angle bins past 58 deg
+
+
 def synthetic_calibration():  # type: ignore[no-untyped-def]
     """A 125-bin calibration with smooth, position-dependent polynomials (no real data needed)."""
     from univtac_data.generators.tactile import TaximCalibration

@@ -241,18 +241,26 @@ def circulant_inverse(shape: tuple[int, int], dx: float, dy: float, e_mpa: float
 @numba.njit(cache=True, nogil=True)
 def _precondition_cells(inverse: np.ndarray, window: tuple[int, int], rows: np.ndarray, cols: np.ndarray,
                         r: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
-    # ``circulant_inverse`` on a flattened (2 m,) residual of the cells (rows, cols) of the window: scattered on
-    # the window, transformed, multiplied, transformed back and gathered
+    # ``circulant_inverse`` on a flattened (2 m,) residual of the cells (rows, cols) of the window
+    return _convolve_cells(inverse, window, window, rows, cols, r)
+
+
+@numba.njit(cache=True, nogil=True)
+def _convolve_cells(multipliers: np.ndarray, window: tuple[int, int], fft_shape: tuple[int, int], rows: np.ndarray,
+                    cols: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover (compiled)
+    # a flattened (2 m,) vector field on the cells (rows, cols) of the window, scattered on it, transformed over
+    # ``fft_shape`` (the window, or the window zero-padded), multiplied frequency by frequency by the symmetric
+    # 2 x 2 (xx, xy, yy) ``multipliers``, transformed back and gathered
     m = rows.size
     field = np.zeros((2, window[0], window[1]), np.float32)
     for i in range(m):
-        field[0, rows[i], cols[i]] = r[i]
-        field[1, rows[i], cols[i]] = r[m + i]
-    spectrum = np.fft.rfft2(field)
+        field[0, rows[i], cols[i]] = v[i]
+        field[1, rows[i], cols[i]] = v[m + i]
+    spectrum = np.fft.rfft2(field, s=(fft_shape[0], fft_shape[1]))
     fx, fy = spectrum[0].copy(), spectrum[1].copy()
-    spectrum[0] = inverse[0] * fx + inverse[1] * fy
-    spectrum[1] = inverse[1] * fx + inverse[2] * fy
-    grid = np.fft.irfft2(spectrum, s=(window[0], window[1]))
+    spectrum[0] = multipliers[0] * fx + multipliers[1] * fy
+    spectrum[1] = multipliers[1] * fx + multipliers[2] * fy
+    grid = np.fft.irfft2(spectrum, s=(fft_shape[0], fft_shape[1]))
     out = np.empty(2 * m)
     for i in range(m):
         out[i] = grid[0, rows[i], cols[i]]
@@ -332,21 +340,7 @@ def _apply_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, int], 
     # of 1e-4, far above float32's 1e-7). numpy.fft inside compiled code comes from rocket-fft.
     if matrix.size > 0:
         return np.dot(matrix, q.astype(np.float32)).astype(np.float64)
-    m = rows.size
-    field = np.zeros((2, window[0], window[1]), np.float32)
-    for i in range(m):
-        field[0, rows[i], cols[i]] = q[i]
-        field[1, rows[i], cols[i]] = q[m + i]
-    spectrum = np.fft.rfft2(field, s=(pad[0], pad[1]))
-    fx, fy = spectrum[0].copy(), spectrum[1].copy()
-    spectrum[0] = spectra[0] * fx + spectra[1] * fy
-    spectrum[1] = spectra[1] * fx + spectra[2] * fy
-    grid = np.fft.irfft2(spectrum, s=(pad[0], pad[1]))
-    out = np.empty(2 * m)
-    for i in range(m):
-        out[i] = grid[0, rows[i], cols[i]]
-        out[m + i] = grid[1, rows[i], cols[i]]
-    return out
+    return _convolve_cells(spectra, window, pad, rows, cols, q)
 
 
 @numba.njit(cache=True, nogil=True)

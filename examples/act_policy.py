@@ -184,7 +184,7 @@ class ChunkPolicyNet(nn.Module):
             enc["widths"] = tuple(enc["widths"])
             self.encoder = TactileEncoder(EncoderConfig(**enc)).eval()
             self.encoder.requires_grad_(False)
-            feat = int(enc["widths"][-1])
+            feat = self.encoder.config.feature_dim
             self.encoder_proj = nn.Sequential(nn.LayerNorm(feat), nn.Linear(feat, d))
         n_tactile = len(PADS) if config.uses_tactile else 0
         self.type_embedding = nn.Parameter(torch.randn(1 + n_tactile, d) * 0.02)  # agent, then each pad

@@ -45,6 +45,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from tactile_encoder import (  # noqa: E402
+    POOLS,
     Augment,
     EncoderConfig,
     RecipeWeights,
@@ -83,6 +84,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--pool", default="avg", choices=POOLS,
+                   help="features: global average of the last map, or average and maximum side by side")
+    p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
+                   help="channels of the encoder's stages (the last is the feature size per pooling)")
+    p.add_argument("--consistency-weight", type=float, default=RecipeWeights.consistency,
+                   help="weight of the episode-contrastive term")
+    p.add_argument("--rotate-deg", type=float, default=Augment.rotate_deg,
+                   help="turn the consistency view by up to this many degrees either way (180: any turn)")
+    p.add_argument("--temperature", type=float, default=RecipeWeights.temperature,
+                   help="temperature of the episode-contrastive term")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--log-every", type=int, default=50)
@@ -254,9 +265,11 @@ def partners(corpus: Corpus, idx: torch.Tensor, gen: torch.Generator) -> torch.T
     return order[pick]
 
 
-def make_model(corpus: Corpus, train_mask: torch.Tensor, size: tuple[int, int], seed: int) -> TactileEncoder:
+def make_model(corpus: Corpus, train_mask: torch.Tensor, size: tuple[int, int], seed: int,
+               widths: tuple[int, ...] = EncoderConfig.widths, pool: str = "avg") -> TactileEncoder:
     torch.manual_seed(seed)
-    model = TactileEncoder(EncoderConfig(height=size[0], width=size[1], n_markers=corpus.markers.shape[1]))
+    model = TactileEncoder(EncoderConfig(height=size[0], width=size[1], n_markers=corpus.markers.shape[1],
+                                         widths=tuple(widths), pool=pool))
     images = corpus.marked[train_mask][:2000].float() / 255.0
     model.mean.copy_(images.mean((0, 2, 3)).view(1, 3, 1, 1))
     model.std.copy_(images.std((0, 2, 3)).clamp_min(1e-3).view(1, 3, 1, 1))
@@ -292,7 +305,8 @@ def train(model: TactileEncoder, corpus: Corpus, train_mask: torch.Tensor, steps
         batch = to_batch(corpus, idx)
         view1 = augment.photometric(batch["marked_rgb"], gen)
         view2_idx = partners(corpus, idx, gen)
-        view2 = augment.shift(augment.photometric(corpus.marked[view2_idx].float() / 255.0, gen), gen)
+        view2 = augment.rotate(augment.shift(augment.photometric(corpus.marked[view2_idx].float() / 255.0, gen),
+                                             gen), gen)
         pred = model(view1)
         view2_embedding = model.projection(model.encode(view2))
         losses = recipe_loss(pred, batch, view2_embedding, weights)
@@ -581,11 +595,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     read_s = time.perf_counter() - t0
     print(f"{len(corpus.label)} samples in contact from {len(corpus.episode_ids)} episodes, {len(corpus.shapes)} "
           f"shapes; {len(train_ids)} training / {len(held_ids)} held-out episodes ({read_s:.0f} s to read)", flush=True)
-    model = make_model(corpus, train_mask, size, args.seed)
-    random_model = make_model(corpus, train_mask, size, args.seed + 1)  # same architecture, never trained
+    arch = {"widths": tuple(args.widths), "pool": args.pool}
+    model = make_model(corpus, train_mask, size, args.seed, **arch)
+    random_model = make_model(corpus, train_mask, size, args.seed + 1, **arch)  # same architecture, never trained
+    weights = RecipeWeights(consistency=args.consistency_weight, temperature=args.temperature)
     t1 = time.perf_counter()
     history = train(model, corpus, train_mask, args.steps, args.batch_size, args.lr, args.seed, args.log_every,
-                    max_minutes=args.max_minutes)
+                    augment=Augment(rotate_deg=args.rotate_deg), weights=weights, max_minutes=args.max_minutes)
     train_s = time.perf_counter() - t1
     checkpoint = args.out_dir / "encoder.pt"
     save_checkpoint(model, checkpoint, corpus.shapes)

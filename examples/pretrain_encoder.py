@@ -33,7 +33,7 @@ import platform
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -84,13 +84,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--pool", default="avg", choices=POOLS,
+    p.add_argument("--pool", default="avgmax", choices=POOLS,
                    help="features: global average of the last map, or average and maximum side by side")
     p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
                    help="channels of the encoder's stages (the last is the feature size per pooling)")
     p.add_argument("--consistency-weight", type=float, default=RecipeWeights.consistency,
                    help="weight of the episode-contrastive term")
-    p.add_argument("--rotate-deg", type=float, default=Augment.rotate_deg,
+    p.add_argument("--rotate-deg", type=float, default=180.0,
                    help="turn the consistency view by up to this many degrees either way (180: any turn)")
     p.add_argument("--temperature", type=float, default=RecipeWeights.temperature,
                    help="temperature of the episode-contrastive term")
@@ -599,9 +599,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     model = make_model(corpus, train_mask, size, args.seed, **arch)
     random_model = make_model(corpus, train_mask, size, args.seed + 1, **arch)  # same architecture, never trained
     weights = RecipeWeights(consistency=args.consistency_weight, temperature=args.temperature)
+    augment = Augment(rotate_deg=args.rotate_deg)
     t1 = time.perf_counter()
     history = train(model, corpus, train_mask, args.steps, args.batch_size, args.lr, args.seed, args.log_every,
-                    augment=Augment(rotate_deg=args.rotate_deg), weights=weights, max_minutes=args.max_minutes)
+                    augment=augment, weights=weights, max_minutes=args.max_minutes)
     train_s = time.perf_counter() - t1
     checkpoint = args.out_dir / "encoder.pt"
     save_checkpoint(model, checkpoint, corpus.shapes)
@@ -621,6 +622,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "machine": machine(), "threads": args.threads, "sensor": args.sensor, "data": str(data),
         "image_size": list(size), "contact_mm": args.contact_mm, "steps": len(history), "max_steps": args.steps,
         "max_minutes": args.max_minutes, "batch_size": args.batch_size,
+        "encoder": model.config.to_dict(), "augment": asdict(augment), "weights": asdict(weights),
         "shapes": corpus.shapes, "symmetry_order": {s: rotational_symmetry(s) for s in corpus.shapes},
         "train_episodes": len(train_ids), "held_out_episodes": len(held_ids),
         "train_samples": int(train_mask.sum()), "held_out_samples": int(held_mask.sum()),

@@ -88,7 +88,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="features: global average of the last map, or average and maximum side by side")
     p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
                    help="channels of the encoder's stages (the last is the feature size per pooling)")
-    p.add_argument("--consistency-weight", type=float, default=RecipeWeights.consistency,
+    p.add_argument("--consistency-weight", type=float, default=2.0,
                    help="weight of the episode-contrastive term")
     p.add_argument("--rotate-deg", type=float, default=180.0,
                    help="turn the consistency view by up to this many degrees either way (180: any turn)")

@@ -13,8 +13,9 @@ Steps:
 2. Split by episode: per shape, a share ``--held-out`` of the episodes (smallest hash of the episode id) is
    held out; no frame of a held-out episode is used for training the encoder or fitting a probe.
 3. Train ``TactileEncoder`` (examples/tactile_encoder.py) with the three pathways: shape (I_pure
-   reconstruction weighted toward the contact region, plus an episode-consistency term between two augmented
-   frames of one episode), contact (D weighted toward the contact, markers M, peak depth) and pose (indenter
+   reconstruction weighted toward the contact region, plus an episode-contrastive term between two augmented
+   frames of one episode, the second turned by any angle so that the imprint's orientation cannot tell
+   episodes apart: ``--rotate-deg``, ``--consistency-weight``), contact (D weighted toward the contact, markers M, peak depth) and pose (indenter
    position in the pad frame, and yaw modulo the shape's rotational symmetry, measured on the indenter
    definitions; dropped for round shapes).
 4. Probe the frozen features of the trained encoder and of a random-init encoder of the same architecture:

@@ -6,13 +6,14 @@
   symmetry (hexagon 6, cross 4, ...) knows yaw only modulo 360/k deg.
 * ``indenter_in_pad``: the pose of the pressed indenter (not the base plate the dataset's ``object_pose``
   holds) in the gel-pad-centre frame: position in mm and yaw about the pad normal in rad.
-* ``TactileEncoder``: a small CNN (4 stages, 16-128 channels, global average pooling to 128 features) with
+* ``TactileEncoder``: a small CNN (4 stages, 16-128 channels, global average pooling to 128 features, or
+  average and maximum side by side to 256 with ``pool="avgmax"``, the recipe's choice) with
   the paper's three pathways as heads: shape (I_pure reconstruction, weighted toward the contact region, and
   an episode-consistency term), contact (depth map D weighted toward the contact, marker positions M, peak
   depth) and pose (symmetry-aware).
 * ``augment``: what suits tactile images: a gain and offset per colour channel, pixel noise, and small
-  shifts (only for the second, consistency view, whose targets are not regressed); no flips, which would
-  turn a chiral shape (pacman, star) into another image without changing its label.
+  shifts and turns by any angle (only for the second, consistency view, whose targets are not regressed);
+  no flips, which would turn a chiral shape (pacman, star) into another image without changing its label.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ query per action of the chunk. Tokens:
   3 x 4 feature map, with a learned position embedding;
 * tactile, by variant: ``vision`` none; ``vision_tactile`` each pad's marked image (area-resized to
   48 x 64 px) through a small CNN trained end to end, one token per pad; ``vision_encoder`` the same images
-  through the pretrained ``TactileEncoder`` (``examples/tactile_encoder.py``), frozen, 128 features per pad
-  projected to one token.
+  through the pretrained ``TactileEncoder`` (``examples/tactile_encoder.py``), frozen, its features per pad
+  (128, or 256 with the recipe's average+maximum pooling) projected to one token.
 
 Training minimises the L1 distance to the demonstrated chunk over the actions that exist: ``action_is_pad``
 (past the episode's end) is masked out of the loss (``masked_l1``). At rollout the policy predicts a chunk
@@ -184,7 +184,7 @@ class ChunkPolicyNet(nn.Module):
             enc["widths"] = tuple(enc["widths"])
             self.encoder = TactileEncoder(EncoderConfig(**enc)).eval()
             self.encoder.requires_grad_(False)
-            feat = int(enc["widths"][-1])
+            feat = self.encoder.config.feature_dim
             self.encoder_proj = nn.Sequential(nn.LayerNorm(feat), nn.Linear(feat, d))
         n_tactile = len(PADS) if config.uses_tactile else 0
         self.type_embedding = nn.Parameter(torch.randn(1 + n_tactile, d) * 0.02)  # agent, then each pad

@@ -13,8 +13,9 @@ Steps:
 2. Split by episode: per shape, a share ``--held-out`` of the episodes (smallest hash of the episode id) is
    held out; no frame of a held-out episode is used for training the encoder or fitting a probe.
 3. Train ``TactileEncoder`` (examples/tactile_encoder.py) with the three pathways: shape (I_pure
-   reconstruction weighted toward the contact region, plus an episode-consistency term between two augmented
-   frames of one episode), contact (D weighted toward the contact, markers M, peak depth) and pose (indenter
+   reconstruction weighted toward the contact region, plus an episode-contrastive term between two augmented
+   frames of one episode, the second turned by any angle so that the imprint's orientation cannot tell
+   episodes apart: ``--rotate-deg``, ``--consistency-weight``), contact (D weighted toward the contact, markers M, peak depth) and pose (indenter
    position in the pad frame, and yaw modulo the shape's rotational symmetry, measured on the indenter
    definitions; dropped for round shapes).
 4. Probe the frozen features of the trained encoder and of a random-init encoder of the same architecture:
@@ -33,7 +34,7 @@ import platform
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from tactile_encoder import (  # noqa: E402
+    POOLS,
     Augment,
     EncoderConfig,
     RecipeWeights,
@@ -83,6 +85,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--pool", default="avgmax", choices=POOLS,
+                   help="features: global average of the last map, or average and maximum side by side")
+    p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
+                   help="channels of the encoder's stages (the last is the feature size per pooling)")
+    p.add_argument("--consistency-weight", type=float, default=2.0,
+                   help="weight of the episode-contrastive term")
+    p.add_argument("--rotate-deg", type=float, default=180.0,
+                   help="turn the consistency view by up to this many degrees either way (180: any turn)")
+    p.add_argument("--temperature", type=float, default=RecipeWeights.temperature,
+                   help="temperature of the episode-contrastive term")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--log-every", type=int, default=50)
@@ -254,9 +266,11 @@ def partners(corpus: Corpus, idx: torch.Tensor, gen: torch.Generator) -> torch.T
     return order[pick]
 
 
-def make_model(corpus: Corpus, train_mask: torch.Tensor, size: tuple[int, int], seed: int) -> TactileEncoder:
+def make_model(corpus: Corpus, train_mask: torch.Tensor, size: tuple[int, int], seed: int,
+               widths: tuple[int, ...] = EncoderConfig.widths, pool: str = "avg") -> TactileEncoder:
     torch.manual_seed(seed)
-    model = TactileEncoder(EncoderConfig(height=size[0], width=size[1], n_markers=corpus.markers.shape[1]))
+    model = TactileEncoder(EncoderConfig(height=size[0], width=size[1], n_markers=corpus.markers.shape[1],
+                                         widths=tuple(widths), pool=pool))
     images = corpus.marked[train_mask][:2000].float() / 255.0
     model.mean.copy_(images.mean((0, 2, 3)).view(1, 3, 1, 1))
     model.std.copy_(images.std((0, 2, 3)).clamp_min(1e-3).view(1, 3, 1, 1))
@@ -292,7 +306,8 @@ def train(model: TactileEncoder, corpus: Corpus, train_mask: torch.Tensor, steps
         batch = to_batch(corpus, idx)
         view1 = augment.photometric(batch["marked_rgb"], gen)
         view2_idx = partners(corpus, idx, gen)
-        view2 = augment.shift(augment.photometric(corpus.marked[view2_idx].float() / 255.0, gen), gen)
+        view2 = augment.rotate(augment.shift(augment.photometric(corpus.marked[view2_idx].float() / 255.0, gen),
+                                             gen), gen)
         pred = model(view1)
         view2_embedding = model.projection(model.encode(view2))
         losses = recipe_loss(pred, batch, view2_embedding, weights)
@@ -581,11 +596,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     read_s = time.perf_counter() - t0
     print(f"{len(corpus.label)} samples in contact from {len(corpus.episode_ids)} episodes, {len(corpus.shapes)} "
           f"shapes; {len(train_ids)} training / {len(held_ids)} held-out episodes ({read_s:.0f} s to read)", flush=True)
-    model = make_model(corpus, train_mask, size, args.seed)
-    random_model = make_model(corpus, train_mask, size, args.seed + 1)  # same architecture, never trained
+    arch = {"widths": tuple(args.widths), "pool": args.pool}
+    model = make_model(corpus, train_mask, size, args.seed, **arch)
+    random_model = make_model(corpus, train_mask, size, args.seed + 1, **arch)  # same architecture, never trained
+    weights = RecipeWeights(consistency=args.consistency_weight, temperature=args.temperature)
+    augment = Augment(rotate_deg=args.rotate_deg)
     t1 = time.perf_counter()
     history = train(model, corpus, train_mask, args.steps, args.batch_size, args.lr, args.seed, args.log_every,
-                    max_minutes=args.max_minutes)
+                    augment=augment, weights=weights, max_minutes=args.max_minutes)
     train_s = time.perf_counter() - t1
     checkpoint = args.out_dir / "encoder.pt"
     save_checkpoint(model, checkpoint, corpus.shapes)
@@ -605,6 +623,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "machine": machine(), "threads": args.threads, "sensor": args.sensor, "data": str(data),
         "image_size": list(size), "contact_mm": args.contact_mm, "steps": len(history), "max_steps": args.steps,
         "max_minutes": args.max_minutes, "batch_size": args.batch_size,
+        "encoder": model.config.to_dict(), "augment": asdict(augment), "weights": asdict(weights),
         "shapes": corpus.shapes, "symmetry_order": {s: rotational_symmetry(s) for s in corpus.shapes},
         "train_episodes": len(train_ids), "held_out_episodes": len(held_ids),
         "train_samples": int(train_mask.sum()), "held_out_samples": int(held_mask.sum()),

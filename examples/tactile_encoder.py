@@ -6,13 +6,14 @@
   symmetry (hexagon 6, cross 4, ...) knows yaw only modulo 360/k deg.
 * ``indenter_in_pad``: the pose of the pressed indenter (not the base plate the dataset's ``object_pose``
   holds) in the gel-pad-centre frame: position in mm and yaw about the pad normal in rad.
-* ``TactileEncoder``: a small CNN (4 stages, 16-128 channels, global average pooling to 128 features) with
+* ``TactileEncoder``: a small CNN (4 stages, 16-128 channels, global average pooling to 128 features, or
+  average and maximum side by side to 256 with ``pool="avgmax"``, the recipe's choice) with
   the paper's three pathways as heads: shape (I_pure reconstruction, weighted toward the contact region, and
   an episode-consistency term), contact (depth map D weighted toward the contact, marker positions M, peak
   depth) and pose (symmetry-aware).
 * ``augment``: what suits tactile images: a gain and offset per colour channel, pixel noise, and small
-  shifts (only for the second, consistency view, whose targets are not regressed); no flips, which would
-  turn a chiral shape (pacman, star) into another image without changing its label.
+  shifts and turns by any angle (only for the second, consistency view, whose targets are not regressed);
+  no flips, which would turn a chiral shape (pacman, star) into another image without changing its label.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from torch import nn
 from torch.nn import functional as F
 
 CONTINUOUS = 0  # rotational symmetry order of a shape that any turn maps onto itself
+POOLS = ("avg", "avgmax")
 
 
 @lru_cache(maxsize=None)
@@ -125,6 +127,16 @@ class EncoderConfig:
     widths: tuple[int, ...] = (16, 32, 64, 128)
     projection_dim: int = 64
     decoder_width: int = 64
+    pool: str = "avg"  # "avg": global average of the last map; "avgmax": average and maximum side by side
+
+    def __post_init__(self) -> None:
+        if self.pool not in POOLS:
+            raise ValueError(f"pool {self.pool!r}: one of {POOLS}")
+
+    @property
+    def feature_dim(self) -> int:
+        """Length of the feature vector ``encode`` returns."""
+        return self.widths[-1] * (2 if self.pool == "avgmax" else 1)
 
     def to_dict(self) -> dict[str, object]:
         return {**asdict(self), "widths": list(self.widths)}
@@ -149,7 +161,7 @@ class TactileEncoder(nn.Module):
             stages += [conv_bn(c_in, c, 2), conv_bn(c, c, 1)]
             c_in = c
         self.backbone = nn.Sequential(*stages)
-        feat = config.widths[-1]
+        feat = config.feature_dim
         self.register_buffer("mean", torch.full((1, 3, 1, 1), 0.5))
         self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
         # the decoder starts from the feature vector (not the feature map), so what it reconstructs must be
@@ -171,7 +183,13 @@ class TactileEncoder(nn.Module):
     def encode(self, marked_rgb: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) in [0, 1] -> (B, F) features (what a probe or a policy keeps)."""
         x = (marked_rgb - self.mean) / self.std
-        return F.adaptive_avg_pool2d(self.backbone(x), 1).flatten(1)
+        fmap = self.backbone(x)
+        avg = F.adaptive_avg_pool2d(fmap, 1).flatten(1)
+        if self.config.pool == "avg":
+            return avg
+        # the maximum keeps where a local pattern (a sharp edge, a corner) is strongest, which the average
+        # of a small imprint dilutes over the whole pad
+        return torch.cat([avg, F.adaptive_max_pool2d(fmap, 1).flatten(1)], 1)
 
     def forward(self, marked_rgb: torch.Tensor) -> dict[str, torch.Tensor]:
         z = self.encode(marked_rgb)
@@ -243,12 +261,21 @@ def recipe_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], v
 @dataclass(frozen=True)
 class Augment:
     """Tactile-image augmentation: gain and offset per colour channel (illumination and camera drift), pixel
-    noise, and shifts of up to ``shift_px`` (a slightly different gel placement). No flips or large turns."""
+    noise, and shifts of up to ``shift_px`` (a slightly different gel placement). No flips (they would turn a
+    chiral shape, pacman or star, into another image with the same label).
+
+    ``rotate_deg``: the second, consistency view is also turned about the image centre by up to this many
+    degrees either way (180: any turn). Why: an episode holds one indenter at one yaw, so without turns the
+    cheapest way to tell episodes apart is the imprint's orientation, and a line from a cylinder's side and
+    from a prism's edge at the same yaw end up as neighbours; turned positives make the contrastive embedding
+    blind to yaw, so episodes of one shape at different yaws meet and the shape's profile is what is left
+    to tell episodes apart. Only the consistency view turns: the pose targets of the first view stay exact."""
 
     gain: float = 0.1
     offset: float = 0.03
     noise: float = 0.01
     shift_px: int = 3
+    rotate_deg: float = 0.0
 
     def photometric(self, images: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
         b = images.shape[0]
@@ -267,3 +294,23 @@ class Augment:
         dy = torch.randint(0, 2 * s + 1, (images.shape[0],), generator=gen)
         dx = torch.randint(0, 2 * s + 1, (images.shape[0],), generator=gen)
         return torch.stack([padded[i, :, dy[i]:dy[i] + h, dx[i]:dx[i] + w] for i in range(images.shape[0])])
+
+    def rotate(self, images: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+        """Each image turned about its centre by a uniform angle in +-``rotate_deg`` (in pixel space, so a
+        non-square image turns without shearing; what comes in from outside the frame repeats the border)."""
+        if self.rotate_deg == 0:
+            return images
+        angle = torch.deg2rad(self.rotate_deg * (2 * torch.rand(images.shape[0], generator=gen) - 1))
+        return rotate_images(images, angle)
+
+
+def rotate_images(images: torch.Tensor, angle_rad: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) turned by ``angle_rad`` (B,) about the image centre, +x toward +y (clockwise as displayed
+    with y down), bilinear, border repeated."""
+    h, w = images.shape[-2:]
+    c, s = torch.cos(angle_rad), torch.sin(angle_rad)
+    # grid_sample's coordinates are normalised per axis; the aspect ratio makes a pixel-space turn
+    theta = torch.stack([torch.stack([c, s * h / w, torch.zeros_like(c)], 1),
+                         torch.stack([-s * w / h, c, torch.zeros_like(c)], 1)], 1)
+    grid = F.affine_grid(theta.to(images.dtype), list(images.shape), align_corners=False)
+    return F.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=False)

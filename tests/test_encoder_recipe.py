@@ -129,3 +129,60 @@ def test_training_lowers_the_loss_and_checkpoints_reload(  # type: ignore[no-unt
     assert report["samples"] == int(held.sum()) and 0.0 <= report["accuracy"] <= 1.0
     lo, hi = report["wilson95"]
     assert lo <= report["accuracy"] <= hi
+
+
+def test_turned_consistency_view_keeps_the_imprint() -> None:
+    """The consistency view's turn is a rigid turn in pixel space (a non-square image must not shear it)."""
+    enc = load("tactile_encoder")
+    image = torch.zeros(1, 1, 48, 64)
+    image[0, 0, 24, 32:44] = 1.0  # a 12-pixel line from the centre toward +x
+    turned = enc.rotate_images(image, torch.tensor([math.pi / 2]))
+    ys, xs = torch.nonzero(turned[0, 0] > 0.3, as_tuple=True)
+    assert int(xs.max() - xs.min()) <= 1 and 10 <= int(ys.max() - ys.min()) <= 12  # now along +y, same length
+    assert int(ys.min()) >= 23  # +x turned toward +y (down, as displayed)
+    assert torch.allclose(enc.rotate_images(image, torch.tensor([0.0])), image, atol=1e-5)
+    gen = torch.Generator().manual_seed(0)
+    assert torch.equal(enc.Augment().rotate(image, gen), image)  # off unless asked for
+    many = image.expand(64, 1, 48, 64)
+    turned = enc.Augment(rotate_deg=180.0).rotate(many, gen)
+    # any turn: the line's tip lands in every quadrant around the centre
+    tips = [torch.nonzero(t[0] > 0.3).float().mean(0) - torch.tensor([23.5, 31.5]) for t in turned]
+    assert {(bool(t[0] > 0), bool(t[1] > 0)) for t in tips} == {(a, b) for a in (False, True) for b in (False, True)}
+
+
+def test_episode_consistency_pulls_one_episode_together_and_pushes_others_apart() -> None:
+    enc = load("tactile_encoder")
+    episode = torch.tensor([0, 0, 1, 1, 2, 2])
+    basis = torch.eye(3)
+    together = basis[episode]  # frames of one episode share a direction, episodes are orthogonal
+    mixed = basis[torch.tensor([0, 1, 1, 2, 2, 0])]  # every frame's neighbour is another episode's
+    low = enc.episode_consistency(together, episode, temperature=0.2)
+    high = enc.episode_consistency(mixed, episode, temperature=0.2)
+    assert float(low) < 0.05 and float(high) > 3.0  # 5 = 1 / temperature: the positive is never nearest
+    # a frame without a partner of its episode in the batch is no anchor, but is still a negative for others
+    lone = torch.tensor([0, 0, 1, 1, 2, 3])
+    emb = torch.cat([together[:4], basis[:1], basis[2:3]])  # the lone frame of episode 2 sits on episode 0
+    assert float(enc.episode_consistency(emb, lone, 0.2)) > float(enc.episode_consistency(together, episode, 0.2))
+
+
+def test_average_and_maximum_pooled_features(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus, tmp_path: Path) -> None:
+    enc = load("tactile_encoder")
+    train, _, _, _ = recipe.split_masks(corpus, 0.34)
+    model = recipe.make_model(corpus, train, (24, 32), seed=0, pool="avgmax").eval()
+    images = corpus.marked[:4].float() / 255.0
+    with torch.no_grad():
+        feats = model.encode(images)
+        fmap = model.backbone((images - model.mean) / model.std)
+    assert model.config.feature_dim == feats.shape[1] == 2 * model.config.widths[-1]
+    assert torch.allclose(feats[:, :128], fmap.mean((2, 3)), atol=1e-5)
+    assert torch.allclose(feats[:, 128:], fmap.amax((2, 3)))
+    path = tmp_path / "encoder.pt"
+    recipe.save_checkpoint(model, path, corpus.shapes)
+    with torch.no_grad():
+        assert torch.equal(recipe.load_checkpoint(path).encode(images), feats)
+    # checkpoints written before the option existed have no "pool" and load as average-pooled
+    old = {k: v for k, v in model.config.to_dict().items() if k != "pool"}
+    assert enc.EncoderConfig(**{**old, "widths": tuple(old["widths"])}).pool == "avg"
+    with pytest.raises(ValueError):
+        enc.EncoderConfig(pool="median")

@@ -147,7 +147,7 @@ def test_the_pretrained_encoder_stays_frozen(demos, tmp_path):
     from tactile_encoder import EncoderConfig, TactileEncoder
 
     torch.manual_seed(1)
-    encoder = TactileEncoder(EncoderConfig())
+    encoder = TactileEncoder(EncoderConfig(pool="avgmax"))  # the recipe's default: 256 features a pad
     save_encoder(encoder, tmp_path / "encoder.pt", [])
     config = tiny_config("vision_encoder", encoder=encoder.config.to_dict())
     cache = type(demos)(dict(demos.tensors), demos.episodes, demos.demo_rate_hz, demos.subsample)

@@ -53,8 +53,8 @@ class PolicyConfig:
     camera_hw: tuple[int, int] = (36, 64)     # height, width px the camera CNN reads (area-resized)
     camera_widths: tuple[int, ...] = (16, 32, 32, 64)  # channels of the camera CNN's four stride-2 stages
     tactile_hw: tuple[int, int] = (48, 64)    # height, width px of each pad's image (the encoder's input)
-    chunk: int = 10                            # actions predicted per step
-    rate_hz: float = 10.0                      # policy steps a second the chunk is spaced at
+    chunk: int = 20                            # actions predicted per step (0.8 s at 25 Hz)
+    rate_hz: float = 25.0                      # policy steps a second the chunk is spaced at
     d_model: int = 128
     heads: int = 4
     encoder_layers: int = 2

@@ -53,8 +53,8 @@ class PolicyConfig:
     camera_hw: tuple[int, int] = (36, 64)     # height, width px the camera CNN reads (area-resized)
     camera_widths: tuple[int, ...] = (16, 32, 32, 64)  # channels of the camera CNN's four stride-2 stages
     tactile_hw: tuple[int, int] = (48, 64)    # height, width px of each pad's image (the encoder's input)
-    chunk: int = 10                            # actions predicted per step
-    rate_hz: float = 10.0                      # policy steps a second the chunk is spaced at
+    chunk: int = 20                            # actions predicted per step (0.8 s at 25 Hz)
+    rate_hz: float = 25.0                      # policy steps a second the chunk is spaced at
     d_model: int = 128
     heads: int = 4
     encoder_layers: int = 2
@@ -99,11 +99,19 @@ def hwc_to_chw(array: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(array)).permute(2, 0, 1)[None]
 
 
+# Smallest std per component of agent_pos and of an action (x, y, z m; quaternion w, x, y, z; opening m):
+# a component that hardly moves (a quaternion component of a top-down task) must not turn a tiny deviation
+# at test time into a huge input. The floor is in each component's unit: 1 mm for positions and the
+# opening, 0.01 for quaternion components. One 0.01 floor for all (the first recipe) normalised Pull-out
+# Key's opening (std 1.5 mm) and x, y (2.7-2.9 mm) by 10 mm: a normalised L1 of 0.06 was then 0.6 mm of
+# opening, and the opening the policy reads in agent_pos moved 0.05 between free and touching.
+STD_FLOOR = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-2, 1e-3)
+
+
 @dataclass
 class Normalization:
-    """Per-component mean and std (float32) of agent_pos (8,) and of the actions (8,). A spread below
-    ``floor`` (a quaternion component that hardly moves) is floored, so a tiny deviation at test time
-    does not become a huge input."""
+    """Per-component mean and std (float32) of agent_pos (8,) and of the actions (8,); each std floored at
+    ``STD_FLOOR`` (in the component's unit)."""
 
     agent_mean: torch.Tensor
     agent_std: torch.Tensor
@@ -112,9 +120,11 @@ class Normalization:
 
     @classmethod
     def fit(cls, agent_pos: torch.Tensor, actions: torch.Tensor, is_pad: torch.Tensor,
-            floor: float = 1e-2) -> Normalization:
+            floor: tuple[float, ...] = STD_FLOOR) -> Normalization:
         real = actions[~is_pad]
-        return cls(agent_pos.mean(0), agent_pos.std(0).clamp_min(floor), real.mean(0), real.std(0).clamp_min(floor))
+        low = torch.tensor(floor, dtype=agent_pos.dtype)
+        return cls(agent_pos.mean(0), torch.maximum(agent_pos.std(0), low), real.mean(0),
+                   torch.maximum(real.std(0), low))
 
     def to_dict(self) -> dict[str, list[float]]:
         return {k: v.tolist() for k, v in asdict(self).items()}
@@ -342,6 +352,6 @@ def parameter_count(net: nn.Module, trainable: bool = True) -> int:
     return sum(p.numel() for p in net.parameters() if p.requires_grad or not trainable)
 
 
-__all__ = ["CHECKPOINT_ENV", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig",
+__all__ = ["CHECKPOINT_ENV", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
            "TemporalEnsembler", "from_env", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
            "save_checkpoint"]

@@ -26,7 +26,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 if str(EXAMPLES) not in sys.path:
     sys.path.insert(0, str(EXAMPLES))
 
-from act_policy import (CHECKPOINT_ENV, ChunkPolicy, PolicyConfig, TemporalEnsembler,  # noqa: E402
+from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, PolicyConfig, TemporalEnsembler,  # noqa: E402
                         load_checkpoint, masked_l1, save_checkpoint)
 from train_policy import load_demos, train  # noqa: E402
 
@@ -98,6 +98,31 @@ def test_is_pad_rows_never_count_in_the_loss():
     changed[0, 0, 0] += 1.0   # a real action does count
     assert not torch.isclose(masked_l1(pred, changed, is_pad), loss)
     assert not torch.isclose(masked_l1(pred, target, torch.zeros_like(is_pad)), loss)
+
+
+def test_normalisation_keeps_millimetre_components_and_floors_still_quaternion_components():
+    """Pull-out Key's opening moves 1.5 mm (std) and its x, y 3 mm: normalised by those, not by a 10 mm floor
+    that would make a 0.5 mm opening error look like 0.05; a quaternion component that never moves is
+    floored (a tiny deviation at rollout must not become a huge input)."""
+    gen = torch.Generator().manual_seed(0)
+    n, chunk = 400, 5
+    spread = torch.tensor([3e-3, 3e-3, 9e-3, 0.2, 0.0, 0.0, 0.3, 1.5e-3])
+    mean = torch.tensor([0.0, 0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 7e-3])
+    agent = mean + spread * torch.randn(n, 8, generator=gen)
+    actions = mean + spread * torch.randn(n, chunk, 8, generator=gen)
+    is_pad = torch.zeros(n, chunk, dtype=torch.bool)
+    is_pad[:, -1] = True
+    actions[is_pad] = 5.0  # padding never counts in the statistics
+    norm = Normalization.fit(agent, actions, is_pad)
+    for std in (norm.agent_std, norm.action_std):
+        for k in (0, 1, 2, 3, 6, 7):
+            assert abs(std[k].item() / spread[k].item() - 1) < 0.15, (k, std[k].item())
+        assert math.isclose(std[4].item(), STD_FLOOR[4], rel_tol=1e-6) and math.isclose(std[5].item(), STD_FLOOR[5], rel_tol=1e-6)
+    assert abs(norm.action_mean[7].item() - 7e-3) < 3e-4
+    # a 0.5 mm opening error is a third of a normalised unit, as the loss sees it
+    assert 0.25 < 5e-4 / norm.action_std[7].item() < 0.45
+    tiny = Normalization.fit(torch.full((10, 8), 0.01), torch.full((10, 2, 8), 0.01), torch.zeros(10, 2, dtype=torch.bool))
+    assert torch.equal(tiny.action_std, torch.tensor(STD_FLOOR, dtype=torch.float32))
 
 
 def test_temporal_ensembling_weights_every_prediction_for_the_step():

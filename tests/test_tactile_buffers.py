@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from univtac_data.generators.scene.frame_stack import FRAME_BUFFERS, PIXEL_FIELDS, BufferPool, FrameStack
+from univtac_data.generators.scene.frame_stack import PIXEL_FIELDS, BufferPool, FrameStack
 from univtac_data.generators.tactile import (
     ContactConfig, PixelBuffers, demo_gap, render_shaded, sensor_grid, simulate_frame, solve_contact,
 )
@@ -205,3 +205,13 @@ def test_nan_inside_the_gap_box_is_refused() -> None:
     gap[100, 150] = np.nan
     with pytest.raises(ValueError, match="gap_mm contains NaN"):
         simulate_frame(MINI, gap, gap_box=(slice(90, 110), slice(140, 160)))
+
+
+def test_buffer_pool_keeps_nothing_without_exact_reference_counts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a free-threaded Python a free buffer cannot be told from a held one: the pool hands out new ones."""
+    from univtac_data.generators.scene import frame_stack
+
+    monkeypatch.setattr(frame_stack, "_EXACT_REFCOUNTS", False)
+    pool = BufferPool()
+    pool.take((8, 8), np.uint8)
+    assert pool.kept_bytes == 0

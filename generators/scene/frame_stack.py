@@ -15,15 +15,19 @@ from univtac_data.generators.tactile import PixelBuffers
 PIXEL_FIELDS = tuple(f.name for f in fields(PixelBuffers))
 
 
+# CPython with the GIL counts references exactly; a free-threaded build defers some counts
+_EXACT_REFCOUNTS = getattr(sys, "_is_gil_enabled", lambda: True)()
+
+
 class BufferPool:
     """Episode-sized frame buffers kept for the next episode that records frames of the same shape.
 
     A frame written into memory fresh from the system pays a page fault for every page it touches: on Lift Can
     recordings (2-core machine, under load) that cost 0.4 ms a frame without cameras and 3 to 5 ms with two
-    480 x 270 cameras. A generator records
-    episode after episode, so a buffer is handed out again once nothing refers to it any more: no episode,
-    array or view of it is alive (its reference count is the pool's own), so a reused buffer can never
-    overwrite frames someone still holds. At most ``max_per_shape`` buffers of one shape and ``max_bytes`` in
+    480 x 270 cameras. A generator records episode after episode, so a buffer is handed out again once nothing
+    refers to it any more: no episode, array or view of it is alive (its reference count is the pool's own),
+    so a reused buffer can never overwrite frames someone still holds. On a free-threaded Python, whose
+    reference counts are not exact, nothing is kept. At most ``max_per_shape`` buffers of one shape and ``max_bytes`` in
     all are kept (free buffers of the shapes asked for longest ago are let go to make room: a process that
     records one task after another keeps about one episode's buffers); ``clear()`` gives the memory back (a
     long-lived process that is done generating).
@@ -40,6 +44,8 @@ class BufferPool:
     def take(self, shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
         """An uninitialised array of ``shape`` and ``dtype``: a kept one that nothing refers to, else a new one,
         kept if the limits allow once free buffers of other shapes are let go."""
+        if not _EXACT_REFCOUNTS:
+            return np.empty(shape, dtype)
         key = (tuple(shape), np.dtype(dtype).str)
         with self._lock:
             kept = self._buffers.pop(key, [])

@@ -73,28 +73,15 @@ def demo_rate(dataset: Any) -> float:
     return rates.pop()
 
 
-def fixed_mmap_threshold(nbytes: int = 128 * 1024) -> bool:
-    """Have glibc serve every allocation above ``nbytes`` from its own mapping, returned to the system when
-    freed. Reading a sample decodes ~2 MB of float images that are freed at once, while the small resized
-    copies kept stay on the heap; glibc's adaptive threshold then moves those large buffers onto the heap,
-    between the kept copies, and the process never gives them back: reading Pull-out Key's 6,384 samples
-    grew to 7.6 GB, 0.48 GB with the threshold fixed. A no-op (False) where the C library is not glibc."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return bool(libc.mallopt(-3, nbytes))  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):
-        return False
-
-
 def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 1, max_episodes: int | None = None,
                log: Any = print) -> DemoCache:
     """Read the demonstrations of ``task`` at ``path`` through ``PolicyChunkDataset`` into memory."""
+    from univtac_data.generators.allocator import fix_mmap_threshold
     from univtac_data.loaders import TASK_OBS_KEYS, PolicyChunkDataset
 
-    fixed_mmap_threshold()
+    # reading a sample decodes ~2 MB of float images freed at once beside the small resized copies kept: with
+    # glibc's adaptive threshold, reading Pull-out Key's 6,384 samples grew to 7.6 GB, 0.48 GB with it fixed
+    fix_mmap_threshold(128 * 1024)
 
     keys = tuple(k for k in TASK_OBS_KEYS if not k.startswith("scene/cameras/")
                  or k.split("/")[2] in config.cameras)
@@ -327,7 +314,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     result = json.loads(json_path.read_text())
     result["wall_s"] = elapsed
-    result["ensemble_k"] = summary.get("ensemble_k", 0.01) if args.ensemble_k is None else args.ensemble_k
+    result["ensemble_k"] = summary.get("ensemble_k", PolicyConfig().ensemble_k) if args.ensemble_k is None else args.ensemble_k
     prefix = "" if args.ensemble_k is None else f"{ENSEMBLE_K_ENV}={args.ensemble_k!r} "
     result["command"] = prefix + " ".join(cmd)
     json_path.write_text(json.dumps(result, indent=1))
@@ -363,7 +350,7 @@ def merged_evaluation(run: Path) -> dict[str, Any] | None:
             "mean_steps": sum(r["steps"] for r in rollouts) / n,
             "wall_s": sum(ev.get("wall_s", ev.get("elapsed_s", 0.0)) for ev in evals),
             "commands": [ev.get("command") for ev in evals], "per_rollout": rollouts,
-            "ensemble_k": evals[0].get("ensemble_k", 0.01)}
+            "ensemble_k": evals[0].get("ensemble_k", PolicyConfig().ensemble_k)}
 
 
 def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:

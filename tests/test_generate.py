@@ -194,6 +194,14 @@ def test_workers_keep_freed_memory_on_linux():
     assert keep_freed_memory() is True  # once per process, then cached
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc allocator tuning")
+def test_mmap_threshold_can_be_fixed_in_a_fresh_process():
+    """The training reader's setting, in its own process so the test process's allocator stays as it was."""
+    code = ("from univtac_data.generators.allocator import fix_mmap_threshold; "
+            "import sys; sys.exit(0 if fix_mmap_threshold(128 * 1024) else 3)")
+    assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == 0
+
+
 def test_gel_layer_option_is_recorded_checked_on_resume_and_elastic_only(tmp_path):
     geometric = cli("generate", "indenters", "--out", str(tmp_path / "g"), "--gel", "layer")
     assert geometric.returncode == 2 and "--gel layer applies to --contact elastic" in geometric.stderr

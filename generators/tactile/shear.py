@@ -33,7 +33,6 @@ frames; the slip state is that of the whole contact. Tangential loads do not mov
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -268,7 +267,7 @@ def _convolve_cells(multipliers: np.ndarray, window: tuple[int, int], fft_shape:
     return out
 
 
-CellOperator = Callable[[np.ndarray], np.ndarray]
+CellOperator = _DenseCells | _WindowCells
 
 
 def _cell_operator(contact_mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, dx: float, dy: float,
@@ -296,11 +295,10 @@ SLIP_ROUND_TOLERANCE = 1e-2
 def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_TOLERANCE,
         max_iter: int = 200, start: np.ndarray | None = None) -> np.ndarray:
     """Solve op(q) = rhs on the ``active`` contact cells (m,) bool (q = 0 on the others) by conjugate
-    gradient, preconditioned with ``op.precondition`` when the operator has one; q and rhs are (2, m).
+    gradient, preconditioned with ``op.precondition``; q and rhs are (2, m).
     ``start``: an initial guess (used on ``active``). Stops when the residual is ``tol`` of the right-hand
     side, so a good guess or a preconditioner saves iterations without changing what "converged" means."""
     keep = active.astype(np.float64)
-    precondition = getattr(op, "precondition", None)
     b = rhs * keep
     if start is None or not b.any():   # a zero load has the zero solution, whatever the guess
         q = np.zeros_like(b)
@@ -312,7 +310,7 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
     stop = tol * tol * max(float(np.vdot(b, b)), 1e-300)
     if rr <= stop:
         return q
-    z = r if precondition is None else precondition(r) * keep
+    z = op.precondition(r) * keep
     d = z.copy()
     rz = float(np.vdot(r, z))
     for _ in range(max_iter):
@@ -325,7 +323,7 @@ def _cg(op: CellOperator, active: np.ndarray, rhs: np.ndarray, tol: float = CG_T
         r -= alpha * ad
         if float(np.vdot(r, r)) <= stop:
             break
-        z = r if precondition is None else precondition(r) * keep
+        z = op.precondition(r) * keep
         rz_new = float(np.vdot(r, z))
         d = z + (rz_new / rz) * d
         rz = rz_new

@@ -428,7 +428,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise SystemExit("no run has both train.json and eval.json")
     report: dict[str, Any] = {"machine": machine(), "note": args.note}
     if args.setup:  # what the runs started from (generation times, reference rates), measured elsewhere
-        report["setup"] = json.loads(Path(args.setup).read_text())
+        try:
+            report["setup"] = json.loads(Path(args.setup).read_text())
+        except (OSError, ValueError) as err:
+            raise SystemExit(f"--setup {args.setup}: not a readable JSON file ({err})") from None
     report["rows"] = rows
     notes = args.ablation_note or []
     for k, runs in enumerate(args.ablation_runs or []):

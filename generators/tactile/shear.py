@@ -251,20 +251,35 @@ def _convolve_cells(multipliers: np.ndarray, window: tuple[int, int], fft_shape:
     # ``fft_shape`` (the window, or the window zero-padded), multiplied frequency by frequency by the symmetric
     # 2 x 2 (xx, xy, yy) ``multipliers``, transformed back and gathered
     m = rows.size
-    field = np.zeros((2, window[0], window[1]), np.float32)
+    wr, fr, fc = window[0], fft_shape[0], fft_shape[1]
+    field = np.zeros((2, wr, window[1]), np.float32)
     for i in range(m):
         field[0, rows[i], cols[i]] = v[i]
         field[1, rows[i], cols[i]] = v[m + i]
-    spectrum = np.fft.rfft2(field, s=(fft_shape[0], fft_shape[1]))
-    fx, fy = spectrum[0].copy(), spectrum[1].copy()
-    spectrum[0] = multipliers[0] * fx + multipliers[1] * fy
-    spectrum[1] = multipliers[1] * fx + multipliers[2] * fy
-    grid = np.fft.irfft2(spectrum, s=(fft_shape[0], fft_shape[1]))
+    # the rows past the window are zero padding, and only the window is read back: the row transforms skip them
+    # (a separable transform, where rfft2 would transform every row of the padded grid)
+    spectrum = np.zeros((2, fr, fc // 2 + 1), np.complex64)
+    spectrum[:, :wr] = np.fft.rfft(field, n=fc, axis=2)
+    spectrum = np.fft.fft(spectrum, axis=1)
+    _multiply_2x2(multipliers, spectrum)
+    grid = np.fft.irfft(np.fft.ifft(spectrum, axis=1)[:, :wr], n=fc, axis=2)
     out = np.empty(2 * m)
     for i in range(m):
         out[i] = grid[0, rows[i], cols[i]]
         out[m + i] = grid[1, rows[i], cols[i]]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _multiply_2x2(multipliers: np.ndarray, spectrum: np.ndarray) -> None:  # pragma: no cover (compiled)
+    # spectrum (2, a, b) <- the symmetric 2 x 2 (xx, xy, yy) ``multipliers`` (3, a, b) times it, frequency by
+    # frequency, in place (array expressions would make five spectrum-sized temporaries)
+    for i in range(spectrum.shape[1]):
+        for j in range(spectrum.shape[2]):
+            fx, fy = spectrum[0, i, j], spectrum[1, i, j]
+            xy = multipliers[1, i, j]
+            spectrum[0, i, j] = multipliers[0, i, j] * fx + xy * fy
+            spectrum[1, i, j] = xy * fx + multipliers[2, i, j] * fy
 
 
 CellOperator = _DenseCells | _WindowCells

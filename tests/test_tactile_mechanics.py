@@ -534,6 +534,42 @@ def test_warm_started_shear_equals_a_cold_solve(dense_max_cells: int) -> None:
 
 
 @pytest.mark.parametrize("dense_max_cells", [0, 10_000])
+def test_shear_on_unchanged_cells_combines_the_unit_basis(dense_max_cells: int) -> None:
+    """A held contact whose cells stay the same while its pressure shifts (so the twist's centre moves) and
+    its slide turns: the stuck solutions come from the state's unit basis, with no solve, and the tractions
+    equal a solve from nothing within the solver's tolerance, on both operators."""
+    from univtac_data.generators.tactile.shear import ContactState, solve_shear
+
+    material = Material(youngs_modulus_mpa=0.3, poisson_ratio=0.48, friction=1.0, source="test")
+    dx, n = 0.25, 40
+    x = (np.arange(n) - n / 2 + 0.5) * dx
+    r2 = (x[None, :] ** 2 + (x[:, None] * 1.3) ** 2) / 2.5**2
+    mask = r2 < 1.0
+    state: ContactState | None = None
+    for frame in range(5):
+        tilt = 1.0 + 0.15 * frame * x[None, :] + 0.05 * frame * x[:, None]  # moves the pressure centroid
+        pressure = np.where(mask, 0.1 * np.sqrt(np.maximum(1.0 - r2, 0.0)) * tilt + 0.01, 0.0)
+        angle = 0.7 * frame
+        slide = (0.03 * np.cos(angle), 0.03 * np.sin(angle))
+        twist = 0.004 * (frame + 1)
+        warm = solve_shear(pressure, mask, dx, dx, x, x, material, slide, twist, state,
+                           dense_max_cells=dense_max_cells)
+        cold_state = None if state is None else ContactState(
+            in_contact=state.in_contact, reference_mm=state.reference_mm,
+            reference_twist_rad=state.reference_twist_rad, slip_mm=state.slip_mm)
+        cold = solve_shear(pressure, mask, dx, dx, x, x, material, slide, twist, cold_state,
+                           dense_max_cells=dense_max_cells)
+        basis = warm.state.unit_basis
+        assert basis is not None and basis.holds(*np.nonzero(mask))
+        assert frame < 2 or (basis.along is not None and basis.across is not None and basis.twist is not None)
+        scale = max(float(np.abs(cold.traction_mpa).max()), 1e-12)
+        np.testing.assert_allclose(warm.traction_mpa, cold.traction_mpa, rtol=0.0, atol=2e-3 * scale)
+        np.testing.assert_allclose(warm.shear_force_n, cold.shear_force_n, rtol=2e-3, atol=1e-9)
+        assert warm.slip_mm == pytest.approx(cold.slip_mm, abs=1e-6)
+        state = warm.state
+
+
+@pytest.mark.parametrize("dense_max_cells", [0, 10_000])
 def test_warm_start_on_a_load_that_vanishes_gives_zero(dense_max_cells: int) -> None:
     """A contact that shrinks to one cell while twisting: the twist's load on the cell is zero, and a guess
     carried from the larger contact must not turn that into a division by zero (it did in single precision)."""

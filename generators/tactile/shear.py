@@ -59,7 +59,9 @@ class ContactState:
     ``slide_solution``: the previous frame's fully stuck tractions per mm of slide, (2, ny, nx) MPa/mm, for
     a slide along ``slide_direction`` (unit (x, y)); ``twist_solution``: likewise per rad of twist,
     (2, ny, nx) MPa/rad. Or None. The tangential solves start from them: a held contact changes little
-    between frames, and a cold start costs about three times the iterations.
+    between frames, and a cold start costs about three times the iterations. ``unit_basis``: the stuck
+    solutions per unit load on the previous frame's contact cells (:class:`UnitBasis`), or None: while the
+    cells stay the same, this frame's stuck solutions are their combinations, with no solve.
     """
 
     in_contact: bool = False
@@ -70,6 +72,48 @@ class ContactState:
     slide_solution: np.ndarray | None = field(default=None, compare=False, repr=False)
     slide_direction: tuple[float, float] = (1.0, 0.0)
     twist_solution: np.ndarray | None = field(default=None, compare=False, repr=False)
+    unit_basis: UnitBasis | None = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class UnitBasis:
+    """Fully stuck tractions per unit load on one set of contact cells (``rows``, ``cols``), flattened (2 m,)
+    (x components, then y). The stuck tractions are linear in the load on fixed cells, so any slide and any
+    twist about any centre is a combination of ``along`` (per mm of slide along the unit ``direction``),
+    ``across`` (per mm along ``direction`` turned +90 deg) and ``twist`` (per rad of twist about
+    ``centre_mm``), each MPa per unit, or None until a frame needed it."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    direction: tuple[float, float] = (1.0, 0.0)
+    along: np.ndarray | None = None
+    across: np.ndarray | None = None
+    twist: np.ndarray | None = None
+    centre_mm: tuple[float, float] = (0.0, 0.0)
+
+    def holds(self, rows: np.ndarray, cols: np.ndarray) -> bool:
+        """Whether this basis is for the cells (``rows``, ``cols``)."""
+        return np.array_equal(self.rows, rows) and np.array_equal(self.cols, cols)
+
+    def slide(self, nx: float, ny: float) -> np.ndarray | None:
+        """The stuck tractions per mm of slide along the unit (``nx``, ``ny``), or None if a part is missing."""
+        dx, dy = self.direction
+        cos, sin = dx * nx + dy * ny, dx * ny - dy * nx
+        if self.along is None or (sin != 0.0 and self.across is None):
+            return None
+        return cos * self.along if sin == 0.0 else cos * self.along + sin * self.across
+
+    def twist_about(self, cx: float, cy: float) -> np.ndarray | None:
+        """The stuck tractions per rad of twist about (``cx``, ``cy``) mm, or None if a part is missing: the
+        twist's load about another centre differs by a uniform slide (cy - cy0, -(cx - cx0)) per rad."""
+        if self.twist is None:
+            return None
+        shift_x, shift_y = cy - self.centre_mm[1], -(cx - self.centre_mm[0])
+        size = float(np.hypot(shift_x, shift_y))
+        if size == 0.0:
+            return self.twist
+        shifted = self.slide(shift_x / size, shift_y / size)
+        return None if shifted is None else self.twist + size * shifted
 
 
 @dataclass(frozen=True)
@@ -451,11 +495,13 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
                       win_rows: np.ndarray, win_cols: np.ndarray, inverse: np.ndarray, p: np.ndarray, rx: np.ndarray, ry: np.ndarray,
                       s_x: float, s_y: float, theta: float, mu: float, area: float, total_p: float,
                       slip_rounds: int, cg_tol: float, round_tol: float, slide_tol: float, guess_s: np.ndarray,
-                      guess_t: np.ndarray) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
+                      guess_t: np.ndarray, exact_s: bool = False,
+                      exact_t: bool = False) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:  # pragma: no cover
     # _stick_slip compiled, on the operator of _apply_cells (the dense matrix, or with an empty matrix the FFT
     # over the window, preconditioned with ``inverse``): its dozens of array calls a round, and each FFT's call
     # overhead, cost more than the arithmetic on a contact's few hundred or thousand cells. Vectors are
-    # flattened (2 m,): x components, then y; an empty guess: none.
+    # flattened (2 m,): x components, then y; an empty guess: none. ``exact_s``, ``exact_t``: the guess is the
+    # stuck solution itself (from a UnitBasis), not solved again.
     op = (matrix, spectra, pad, window, win_rows, win_cols, inverse)
     m = p.size
     every = np.ones(2 * m)
@@ -465,7 +511,7 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
     if s_x != 0.0 or s_y != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = s_x, s_y
-        q_s = _cg_cells(*op, every, rhs, guess_s, cg_tol, 200)
+        q_s = guess_s.copy() if exact_s else _cg_cells(*op, every, rhs, guess_s, cg_tol, 200)
         force = np.hypot(q_s[:m].sum() * area, q_s[m:].sum() * area)
         limit = mu * total_p * area
         if force > limit * (1.0 + slide_tol):
@@ -474,7 +520,7 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
     if theta != 0.0:
         rhs = np.empty(2 * m)
         rhs[:m], rhs[m:] = -theta * ry, theta * rx
-        q_t = _cg_cells(*op, every, rhs, guess_t, cg_tol, 200)
+        q_t = guess_t.copy() if exact_t else _cg_cells(*op, every, rhs, guess_t, cg_tol, 200)
         torque = abs((rx * q_t[m:] - ry * q_t[:m]).sum() * area)
         limit = mu * (p * np.hypot(rx, ry)).sum() * area
         if torque > limit * (1.0 + slide_tol):
@@ -538,6 +584,57 @@ def _warm_start(state: ContactState | None, shape: tuple[int, ...], rows: np.nda
     if state.twist_solution is not None and state.twist_solution.shape[1:] == shape and theta != 0.0:
         guess_t = _gather_cells(state.twist_solution, rows, cols, 1.0, 0.0, theta)
     return guess_s, guess_t
+
+
+def _new_basis(rows: np.ndarray, cols: np.ndarray, s: np.ndarray, theta: float, cx: float, cy: float,
+               q_s: np.ndarray, q_t: np.ndarray) -> UnitBasis:
+    """The basis this frame's stuck solutions (q_s, q_t (2, m)) give for its cells."""
+    size = float(np.hypot(s[0], s[1]))
+    return UnitBasis(rows, cols, direction=(float(s[0] / size), float(s[1] / size)) if size > 0.0 else (1.0, 0.0),
+                     along=q_s.reshape(-1) / size if size > 0.0 else None,
+                     twist=q_t.reshape(-1) / theta if theta != 0.0 else None, centre_mm=(cx, cy))
+
+
+def _complete_basis(basis: UnitBasis, operator: tuple, s: np.ndarray, theta: float, cx: float, cy: float,
+                    rx: np.ndarray, ry: np.ndarray) -> UnitBasis:
+    """``basis`` with the parts this frame's slide ``s`` and twist ``theta`` about (cx, cy) need solved (each
+    once for as long as the cells stay the same), each from the closest guess the basis has."""
+    m = rx.size
+    every = np.ones(2 * m)
+    size = float(np.hypot(s[0], s[1]))
+    needs_slide = size > 0.0 or (theta != 0.0 and basis.twist is not None and
+                                 (cx, cy) != basis.centre_mm)
+    if needs_slide and basis.along is None:
+        # no slide yet on these cells: solve along this frame's slide, or along x for a twist's shift
+        (nx, ny) = (s[0] / size, s[1] / size) if size > 0.0 else (1.0, 0.0)
+        rhs = np.concatenate([np.full(m, nx), np.full(m, ny)])
+        basis = UnitBasis(basis.rows, basis.cols, (float(nx), float(ny)),
+                          _cg_cells(*operator, every, rhs, np.zeros(0), CG_TOLERANCE, 200), None, basis.twist,
+                          basis.centre_mm)
+    # as UnitBasis.slide decides it: a slide off the basis direction needs the turned solution too
+    turn = (size > 0.0 and basis.direction[0] * (s[1] / size) - basis.direction[1] * (s[0] / size) != 0.0) or \
+        (theta != 0.0 and basis.twist is not None and (cx, cy) != basis.centre_mm)
+    if needs_slide and turn and basis.across is None:
+        dx, dy = basis.direction
+        rhs = np.concatenate([np.full(m, -dy), np.full(m, dx)])
+        along = basis.along
+        start = np.concatenate([-along[m:], along[:m]])  # along turned +90 deg: exact on a round contact
+        basis = UnitBasis(basis.rows, basis.cols, basis.direction, basis.along,
+                          _cg_cells(*operator, every, rhs, start, CG_TOLERANCE, 200), basis.twist, basis.centre_mm)
+    if theta != 0.0 and basis.twist is None:
+        rhs = np.concatenate([-ry, rx])
+        basis = UnitBasis(basis.rows, basis.cols, basis.direction, basis.along, basis.across,
+                          _cg_cells(*operator, every, rhs, np.zeros(0), CG_TOLERANCE, 200), (cx, cy))
+    return basis
+
+
+def _exact_from_basis(basis: UnitBasis, s: np.ndarray, theta: float, cx: float,
+                      cy: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """This frame's stuck slide and twist solutions (2 m,) as combinations of a completed ``basis``."""
+    size = float(np.hypot(s[0], s[1]))
+    slide = basis.slide(s[0] / size, s[1] / size) if size > 0.0 else None
+    twist = basis.twist_about(cx, cy) if theta != 0.0 else None
+    return (None if slide is None else size * slide), (None if twist is None else theta * twist)
 
 
 def _unit_solutions(state: ContactState | None, shape: tuple[int, ...], rows: np.ndarray, cols: np.ndarray,
@@ -625,16 +722,25 @@ def solve_shear(
     cx, cy = float((p * gx).sum() / total_p), float((p * gy).sum() / total_p)
     rx, ry = gx - cx, gy - cy
     op = _cell_operator(contact_mask, rows, cols, dx_mm, dy_mm, material, dense_max_cells, thickness_mm)
-    guess_s, guess_t = _warm_start(state, shape, rows, cols, s, theta)
     if isinstance(op, _DenseCells):
         operator = (op.matrix, _NO_SPECTRA, (1, 1), op.shape, op.rows, op.cols, op.inverse)
     else:
         operator = (_NO_MATRIX, np.stack([op.xx, op.xy, op.yy]), op.pad, op.shape, op.rows, op.cols, op.inverse)
+    basis = state.unit_basis if state is not None and state.in_contact else None
+    if basis is not None and basis.holds(rows, cols):
+        basis = _complete_basis(basis, operator, s, theta, cx, cy, rx, ry)
+        exact_s, exact_t = _exact_from_basis(basis, s, theta, cx, cy)
+        guess_s, guess_t = exact_s, exact_t
+    else:
+        basis, exact_s, exact_t = None, None, None
+        guess_s, guess_t = _warm_start(state, shape, rows, cols, s, theta)
     none = np.zeros(0)
     q, lam_s, lam_t, q_s, q_t = _stick_slip_cells(
         *operator, p, rx, ry, float(s[0]), float(s[1]), theta, mu, area, total_p, slip_rounds, CG_TOLERANCE,
         SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none if guess_s is None else guess_s,
-        none if guess_t is None else guess_t)
+        none if guess_t is None else guess_t, exact_s is not None, exact_t is not None)
+    if basis is None:
+        basis = _new_basis(rows, cols, s, theta, cx, cy, q_s, q_t)
     slide_solution, slide_direction, twist_solution = _unit_solutions(state, shape, rows, cols, s, theta, q_s, q_t)
     reference = reference + (1.0 - lam_s) * s
     twist_ref = twist_ref + (1.0 - lam_t) * theta
@@ -655,7 +761,7 @@ def solve_shear(
     new_state = ContactState(
         in_contact=True, reference_mm=(float(reference[0]), float(reference[1])),
         reference_twist_rad=float(twist_ref), slip_mm=float(slip), slide_solution=slide_solution,
-        slide_direction=slide_direction, twist_solution=twist_solution,
+        slide_direction=slide_direction, twist_solution=twist_solution, unit_basis=basis,
     )
     return ShearResult(traction, displacement, q.sum(axis=1) * area, float(slip), new_state)
 

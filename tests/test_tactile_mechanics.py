@@ -428,7 +428,8 @@ def test_compiled_stick_slip_equals_the_array_code(slide_mm: tuple[float, float]
     window, against the array code on the same operator: stuck, partial slip, gross slide and gross twist,
     no load."""
     from univtac_data.generators.tactile.shear import (
-        _NO_MATRIX, _NO_SPECTRA, CG_TOLERANCE, SLIDE_TOLERANCE, SLIP_ROUND_TOLERANCE, _DenseCells,
+        _NO_MATRIX, _NO_SPECTRA, CG_TOLERANCE, SETTLED_SLIP_TOLERANCE, SLIDE_TOLERANCE, SLIP_ROUND_TOLERANCE,
+        _DenseCells,
         _stick_slip, _stick_slip_cells, _WindowCells,
     )
 
@@ -452,7 +453,7 @@ def test_compiled_stick_slip_equals_the_array_code(slide_mm: tuple[float, float]
     none = np.zeros(0)
     q_c, lam_s_c, lam_t_c, q_s_c, q_t_c = _stick_slip_cells(
         *compiled_op, p, rx, ry, s[0], s[1], twist_rad, material.friction, dx * dx, total_p, 8, CG_TOLERANCE,
-        SLIP_ROUND_TOLERANCE, SLIDE_TOLERANCE, none, none)
+        SLIP_ROUND_TOLERANCE, SETTLED_SLIP_TOLERANCE, SLIDE_TOLERANCE, none, none)
     # the dense operator is the same arithmetic; the FFTs are pocketfft's in both, called differently (float
     # rounding of a single-precision transform, then the solve's tolerance)
     rel = 1e-12 if operator == "dense" else 2e-3

@@ -240,13 +240,6 @@ class KernelSet:
             self._zz_preconditioner = inverse
         return self._zz_preconditioner
 
-    def add_cells(self, field: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
-        """``field`` (ny, nx) += the normal displacement (mm) of pressures ``values`` (MPa) on cells
-        (``rows``, ``cols``): the convolution of a few cells without a transform."""
-        ny, nx = self.shape
-        for r, c, v in zip(rows.tolist(), cols.tolist(), values.tolist(), strict=True):
-            field += np.float32(v) * self.zz_centred[ny - 1 - r : 2 * ny - 1 - r, nx - 1 - c : 2 * nx - 1 - c]
-
     def _tangential_spatial(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g
         f = _corner_sum(_f_inv_r, x, y, a, b)

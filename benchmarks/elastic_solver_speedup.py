@@ -19,7 +19,7 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, as the numbers claim
 
 import argparse  # noqa: E402
-import importlib  # noqa: E402
+import importlib.util  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
@@ -27,6 +27,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
 from types import ModuleType  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -43,18 +44,25 @@ BASELINE_COMMIT = "ccc2d50"  # main before the preconditioned solve
 GELS = ("half_space", "layer")
 
 
-def baseline_module(commit: str) -> ModuleType:
-    """``generators/tactile/contact_elastic.py`` at ``commit`` as a module of the tactile package (its relative
-    imports resolve to today's kernels, contact types and sensor grid, which it shares)."""
-    source = subprocess.run(["git", "show", f"{commit}:generators/tactile/contact_elastic.py"], cwd=ROOT,
-                            capture_output=True, text=True, check=True).stdout
-    name = "_baseline_contact_elastic"
-    path = ROOT / "generators" / "tactile" / f"{name}.py"
+def _module_at(commit: str, source_path: str, name: str) -> ModuleType:
+    """The file ``source_path`` at ``commit``, loaded from git as ``univtac_data.generators.tactile.<name>``."""
+    source = subprocess.run(["git", "show", f"{commit}:{source_path}"], cwd=ROOT, capture_output=True, text=True,
+                            check=True).stdout
+    path = Path(tempfile.mkdtemp()) / f"{name}.py"
     path.write_text(source)
-    try:
-        return importlib.import_module(f"univtac_data.generators.tactile.{name}")
-    finally:
-        path.unlink()
+    spec = importlib.util.spec_from_file_location(f"univtac_data.generators.tactile.{name}", path)
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
+def baseline_module(commit: str) -> ModuleType:
+    """``generators/tactile/contact_elastic.py`` at ``commit`` with the influence coefficients of its time
+    (``kernels.py`` at ``commit``); its other imports (contact types, sensor grid) are today's, which it shares."""
+    kernels = _module_at(commit, "generators/tactile/kernels.py", "_baseline_kernels")
+    module = _module_at(commit, "generators/tactile/contact_elastic.py", "_baseline_contact_elastic")
+    module.kernel_set, module.convolve = kernels.kernel_set, kernels.convolve  # type: ignore[attr-defined]
+    return module
 
 
 def counted(solve: Callable[..., object], tally: dict[str, float]) -> Callable[..., object]:

@@ -242,7 +242,11 @@ def test_mirror_symmetric_inputs_give_mirror_symmetric_outputs(method: str) -> N
     mirrored = simulate_frame(MINI, gap[:, ::-1], method=method)  # type: ignore[arg-type]
     np.testing.assert_allclose(frame.depth_mm, mirrored.depth_mm[:, ::-1], atol=1e-6)
     np.testing.assert_allclose(frame.depth_mm, frame.depth_mm[:, ::-1], atol=1e-6)
-    np.testing.assert_allclose(frame.pressure_mpa, frame.pressure_mpa[:, ::-1], atol=1e-6)
+    # the elastic solve stops at a relative change of 1e-6 and convolves in single precision, which leaves its
+    # pressure mirror-symmetric to a few 1e-6 of the peak; at the rim the image's pressure is the root of an
+    # extrapolated p^2, which magnifies that a few times
+    np.testing.assert_allclose(frame.pressure_mpa, frame.pressure_mpa[:, ::-1],
+                               atol=1e-4 * float(frame.pressure_mpa.max()))
     u = frame.markers_px[:, 0].reshape(MINI.marker_rows, MINI.marker_cols)
     np.testing.assert_allclose(u, (MINI.image_width_px - 1) - u[:, ::-1], atol=1e-3)
 

@@ -203,6 +203,7 @@ class KernelSet:
             zz_spatial += layer_profile("normal", rho, nu) * (dx * dy / (np.pi * self.e_star * thickness_mm))
         self.zz = self._spectrum(zz_spatial)
         self._zz_single: np.ndarray | None = None
+        self._zz_preconditioner: np.ndarray | None = None
         # offsets -(n-1)..(n-1) in order: the response of the field to one cell is a slice of it
         self.zz_centred = np.fft.fftshift(zz_spatial)[1:, 1:].astype(np.float32)
         self._tangential: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -221,12 +222,23 @@ class KernelSet:
             self._zz_single = self.zz.astype(np.complex64)
         return self._zz_single
 
-    def add_cells(self, field: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
-        """``field`` (ny, nx) += the normal displacement (mm) of pressures ``values`` (MPa) on cells
-        (``rows``, ``cols``): the convolution of a few cells without a transform."""
-        ny, nx = self.shape
-        for r, c, v in zip(rows.tolist(), cols.tolist(), values.tolist(), strict=True):
-            field += np.float32(v) * self.zz_centred[ny - 1 - r : 2 * ny - 1 - r, nx - 1 - c : 2 * nx - 1 - c]
+    @property
+    def zz_preconditioner(self) -> np.ndarray:
+        """(ny, nx // 2 + 1) float32 multipliers of the rfft2 over this grid (not padded) that approximately
+        invert the normal operator: the inverse, frequency by frequency, of the circulant matrix that keeps the
+        coefficients within half the grid of each cell (Strang's preconditioner for Toeplitz systems, as
+        ``shear.circulant_inverse`` for the tangential one). Eigenvalues below a thousandth of the largest
+        (the layer's far field is negative) are raised to it, so the multipliers stay positive."""
+        if self._zz_preconditioner is None:
+            ny, nx = self.shape
+            oy, ox = np.arange(ny), np.arange(nx)
+            oy, ox = np.where(oy <= ny // 2, oy, oy - ny), np.where(ox <= nx // 2, ox, ox - nx)
+            wrapped = self.zz_centred[(ny - 1 + oy)[:, None], (nx - 1 + ox)[None, :]].astype(np.float64)
+            eigen = np.fft.rfft2(wrapped).real
+            inverse = (1.0 / np.maximum(eigen, 1e-3 * float(eigen.max()))).astype(np.float32)
+            inverse.flags.writeable = False
+            self._zz_preconditioner = inverse
+        return self._zz_preconditioner
 
     def _tangential_spatial(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x, y, a, b, nu, g = self._x, self._y, self._a, self._b, self.nu, self.g

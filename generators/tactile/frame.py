@@ -128,20 +128,35 @@ def _upsample_pressure(pressure: np.ndarray, step: int, fine_mask: np.ndarray) -
 
 def _extrapolated_squares(q: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """``q`` = p^2 (ny, nx) with each cell outside the load (``inside`` false) that has two loaded cells in a
-    row along an axis set to the mean of their linear extrapolations, at most 0 (rolls: the field wraps at its
-    edges)."""
-    total = np.zeros_like(q)
-    count = np.zeros_like(q)
-    for axis in (0, 1):
-        for shift in (1, -1):
-            nb1 = np.roll(q, shift, axis)
-            nb2 = np.roll(q, 2 * shift, axis)
-            ok = ~inside & np.roll(inside, shift, axis) & np.roll(inside, 2 * shift, axis)
-            total += np.where(ok, 2.0 * nb1 - nb2, 0.0)
-            count += ok
-    # an unloaded cell is open at its centre, so the edge lies before it: its extrapolation is kept <= 0 (a
-    # positive one, from a pressure still rising at the edge, would carry the contact on to the next cell)
-    return np.where(count > 0, np.minimum(total / np.maximum(count, 1.0), 0.0), q)
+    row along an axis set to the mean of their linear extrapolations, at most 0 (the field wraps at its
+    edges, as numpy's roll does)."""
+    out = np.empty_like(q)
+    _extrapolate_squares_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(inside), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _extrapolate_squares_kernel(q: np.ndarray, inside: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
+    # one pass, where array code made sixteen rolled copies of the box (1.5 ms of an elastic frame on a cylinder
+    # across the pad); the directions are summed in the order the array code summed them (rows down, rows up,
+    # columns right, columns left), so the result is the same to the bit
+    ny, nx = q.shape
+    for i in range(ny):
+        for j in range(nx):
+            if inside[i, j]:
+                out[i, j] = q[i, j]
+                continue
+            total, count = 0.0, 0.0
+            for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                i1, j1 = (i - di) % ny, (j - dj) % nx
+                i2, j2 = (i - 2 * di) % ny, (j - 2 * dj) % nx
+                if inside[i1, j1] and inside[i2, j2]:
+                    total += 2.0 * q[i1, j1] - q[i2, j2]
+                    count += 1.0
+            # an unloaded cell is open at its centre, so the edge lies before it: its extrapolation is kept <= 0
+            # (a positive one, from a pressure still rising at the edge, would carry the contact on to the next
+            # cell)
+            out[i, j] = min(total / count, 0.0) if count > 0.0 else q[i, j]
 
 
 def _to_micrometres(depth_mm: np.ndarray, box: tuple[slice, slice] | None = None,

@@ -1,7 +1,7 @@
 """The encoder pretraining recipe: a tactile encoder that knows shape, contact and pose, in about an hour on a
 laptop CPU, checked by linear probes on held-out episodes.
 
-    python examples/pretrain_encoder.py --generate 30 --out-dir out/encoder_recipe   # make the corpus, train, probe
+    python examples/pretrain_encoder.py --generate 40 --out-dir out/encoder_recipe   # make the corpus, train, probe
     python examples/pretrain_encoder.py --data out/indenters                          # an existing corpus
 
 Steps:
@@ -9,9 +9,10 @@ Steps:
 1. Corpus: ``--generate N`` runs ``univtac-data generate indenters`` (N episodes per shape, one sensor, 14
    shapes) into ``OUT_DIR/corpus``; or ``--data PATH``. The frames in contact (peak depth >= ``--contact-mm``;
    before the grasp closes the gel is flat and every shape looks alike) are read once, area-resized to
-   ``--image-size`` and cached beside the corpus.
+   ``--image-size`` (the reconstruction targets at ``--target-size``) and cached beside the corpus.
 2. Split by episode: per shape, a share ``--held-out`` of the episodes (smallest hash of the episode id) is
    held out; no frame of a held-out episode is used for training the encoder or fitting a probe.
+   ``--train-episodes N`` trains on at most N of the others per shape (the held-out ones stay the same).
 3. Train ``TactileEncoder`` (examples/tactile_encoder.py) with the three pathways: shape (I_pure
    reconstruction weighted toward the contact region, plus an episode-contrastive term between two augmented
    frames of one episode, the second turned by any angle so that the imprint's orientation cannot tell
@@ -87,7 +88,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--train-episodes", type=int, metavar="N",
                    help="train the encoder and fit the probes on at most N episodes per shape (default: all "
                         "that are not held out; the held-out episodes do not change)")
-    p.add_argument("--steps", type=int, default=3000, help="optimiser steps (at most, with --max-minutes)")
+    p.add_argument("--steps", type=int, default=5000, help="optimiser steps (at most, with --max-minutes)")
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)

@@ -241,3 +241,16 @@ def test_larger_input_with_small_reconstruction_targets(  # type: ignore[no-unty
     for bad in ({"space_to_depth": 0}, {"height": 47, "space_to_depth": 2}, {"target_height": 24}):
         with pytest.raises(ValueError):
             enc.EncoderConfig(**bad)
+
+
+def test_a_policy_feeds_the_frozen_encoder_images_of_its_input_size() -> None:
+    """A policy's tactile images are resized to ``tactile_hw``: an encoder trained on another size must be
+    refused, not fed images whose imprint is at another scale."""
+    load("tactile_encoder")
+    act = load("act_policy")
+    enc = load("tactile_encoder").EncoderConfig(height=96, width=128, space_to_depth=2, target_height=48,
+                                                target_width=64).to_dict()
+    with pytest.raises(ValueError, match="tactile_hw"):
+        act.PolicyConfig(variant="vision_encoder", encoder=enc)
+    assert act.PolicyConfig(variant="vision_encoder", encoder=enc, tactile_hw=(96, 128)).tactile_hw == (96, 128)
+    assert act.PolicyConfig(variant="vision_encoder", encoder=load("tactile_encoder").EncoderConfig().to_dict())

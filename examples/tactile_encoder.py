@@ -10,7 +10,8 @@
   average and maximum side by side to 256 with ``pool="avgmax"``, the recipe's choice) with
   the paper's three pathways as heads: shape (I_pure reconstruction, weighted toward the contact region, and
   an episode-consistency term), contact (depth map D weighted toward the contact, marker positions M, peak
-  depth) and pose (symmetry-aware).
+  depth) and pose (symmetry-aware). ``space_to_depth=2`` feeds a 96 x 128 image as 2 x 2 pixel blocks at
+  about the cost of 48 x 64, and ``target_height``/``target_width`` keep the decoder's targets small.
 * ``augment``: what suits tactile images: a gain and offset per colour channel, pixel noise, and small
   shifts and turns by any angle (only for the second, consistency view, whose targets are not regressed);
   no flips, which would turn a chiral shape (pacman, star) into another image without changing its label.

@@ -97,7 +97,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
                    help="channels of the encoder's stages (the last is the feature size per pooling)")
     p.add_argument("--space-to-depth", type=int, default=1, metavar="F",
-                   help="feed the input's F x F pixel blocks as channels (2: a 96 x 128 input at the cost of 48 x 64)")
+                   help="feed the input's F x F pixel blocks as channels (2: 96 x 128 at the cost of 48 x 64)")
     p.add_argument("--consistency-weight", type=float, default=2.0,
                    help="weight of the episode-contrastive term")
     p.add_argument("--rotate-deg", type=float, default=180.0,
@@ -651,7 +651,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "recipe": "examples/pretrain_encoder.py", "command": "python examples/pretrain_encoder.py "
         + " ".join(sys.argv[1:] if argv is None else argv),
         "machine": machine(), "threads": args.threads, "sensor": args.sensor, "data": str(data),
-        "image_size": list(size), "target_size": list(target), "contact_mm": args.contact_mm, "steps": len(history), "max_steps": args.steps,
+        "image_size": list(size), "target_size": list(target), "contact_mm": args.contact_mm,
+        "steps": len(history), "max_steps": args.steps,
         "max_minutes": args.max_minutes, "batch_size": args.batch_size,
         "encoder": model.config.to_dict(), "augment": asdict(augment), "weights": asdict(weights),
         "shapes": corpus.shapes, "symmetry_order": {s: rotational_symmetry(s) for s in corpus.shapes},

@@ -69,6 +69,10 @@ class PolicyConfig:
             raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {self.variant!r})")
         if self.variant == "vision_encoder" and self.encoder is None:
             raise ValueError("the vision_encoder variant needs the encoder's config (load it with --encoder PATH)")
+        if self.variant == "vision_encoder" and self.encoder is not None:
+            size = (int(self.encoder.get("height", 48)), int(self.encoder.get("width", 64)))
+            if size != tuple(self.tactile_hw):  # resized to another size, the features would mean something else
+                raise ValueError(f"tactile_hw {tuple(self.tactile_hw)} must be the encoder's input size {size}")
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "cameras": list(self.cameras), "camera_hw": list(self.camera_hw),

@@ -1,7 +1,7 @@
 """The encoder pretraining recipe: a tactile encoder that knows shape, contact and pose, in about an hour on a
 laptop CPU, checked by linear probes on held-out episodes.
 
-    python examples/pretrain_encoder.py --generate 30 --out-dir out/encoder_recipe   # make the corpus, train, probe
+    python examples/pretrain_encoder.py --generate 40 --out-dir out/encoder_recipe   # make the corpus, train, probe
     python examples/pretrain_encoder.py --data out/indenters                          # an existing corpus
 
 Steps:
@@ -9,9 +9,10 @@ Steps:
 1. Corpus: ``--generate N`` runs ``univtac-data generate indenters`` (N episodes per shape, one sensor, 14
    shapes) into ``OUT_DIR/corpus``; or ``--data PATH``. The frames in contact (peak depth >= ``--contact-mm``;
    before the grasp closes the gel is flat and every shape looks alike) are read once, area-resized to
-   ``--image-size`` and cached beside the corpus.
+   ``--image-size`` (the reconstruction targets at ``--target-size``) and cached beside the corpus.
 2. Split by episode: per shape, a share ``--held-out`` of the episodes (smallest hash of the episode id) is
    held out; no frame of a held-out episode is used for training the encoder or fitting a probe.
+   ``--train-episodes N`` trains on at most N of the others per shape (the held-out ones stay the same).
 3. Train ``TactileEncoder`` (examples/tactile_encoder.py) with the three pathways: shape (I_pure
    reconstruction weighted toward the contact region, plus an episode-contrastive term between two augmented
    frames of one episode, the second turned by any angle so that the imprint's orientation cannot tell
@@ -78,10 +79,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--gen-workers", type=int, default=1, help="with --generate: worker processes")
     p.add_argument("--contact", default="geometric", choices=("geometric", "elastic"),
                    help="with --generate: the contact model")
-    p.add_argument("--image-size", type=int, nargs=2, default=(48, 64), metavar=("H", "W"))
+    p.add_argument("--image-size", type=int, nargs=2, default=(48, 64), metavar=("H", "W"),
+                   help="the encoder's input (marked image)")
+    p.add_argument("--target-size", type=int, nargs=2, metavar=("H", "W"),
+                   help="I_pure and D reconstruction targets (default: --image-size)")
     p.add_argument("--contact-mm", type=float, default=0.01, help="a frame is in contact at this peak depth")
     p.add_argument("--held-out", type=float, default=0.25, help="share of each shape's episodes held out")
-    p.add_argument("--steps", type=int, default=3000, help="optimiser steps (at most, with --max-minutes)")
+    p.add_argument("--train-episodes", type=int, metavar="N",
+                   help="train the encoder and fit the probes on at most N episodes per shape (default: all "
+                        "that are not held out; the held-out episodes do not change)")
+    p.add_argument("--steps", type=int, default=5000, help="optimiser steps (at most, with --max-minutes)")
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=2e-3)
@@ -89,6 +96,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="features: global average of the last map, or average and maximum side by side")
     p.add_argument("--widths", type=int, nargs="+", default=list(EncoderConfig.widths),
                    help="channels of the encoder's stages (the last is the feature size per pooling)")
+    p.add_argument("--space-to-depth", type=int, default=1, metavar="F",
+                   help="feed the input's F x F pixel blocks as channels (2: 96 x 128 at the cost of 48 x 64)")
     p.add_argument("--consistency-weight", type=float, default=2.0,
                    help="weight of the episode-contrastive term")
     p.add_argument("--rotate-deg", type=float, default=180.0,
@@ -123,9 +132,9 @@ class Corpus:
     """The frames in contact of one sensor's episodes, at training resolution, as tensors (N samples, one per
     frame and pad). ``episode`` indexes ``episode_ids``; ``label`` indexes ``shapes``."""
 
-    marked: torch.Tensor    # (N, 3, H, W) uint8
-    pure: torch.Tensor      # (N, 3, H, W) uint8
-    depth: torch.Tensor     # (N, 1, H, W) float16, mm
+    marked: torch.Tensor    # (N, 3, H, W) uint8, the encoder's input
+    pure: torch.Tensor      # (N, 3, h, w) uint8, at the reconstruction target's size
+    depth: torch.Tensor     # (N, 1, h, w) float16, mm
     markers: torch.Tensor   # (N, M, 2) float32 in [-1, 1]
     peak: torch.Tensor      # (N,) float32, peak depth mm (native resolution)
     position: torch.Tensor  # (N, 3) float32, indenter in the pad frame, mm
@@ -145,12 +154,15 @@ class Corpus:
         return {f.name: getattr(self, f.name) for f in fields(self)}  # dataclasses.asdict would deep-copy
 
 
-def load_corpus(path: Path, sensor: str, size: tuple[int, int], contact_mm: float, cache: Path | None = None) \
-        -> Corpus:
-    """Read the frames in contact of ``sensor``'s episodes (cached in ``cache`` when given)."""
+def load_corpus(path: Path, sensor: str, size: tuple[int, int], contact_mm: float, cache: Path | None = None,
+                target_size: tuple[int, int] | None = None) -> Corpus:
+    """Read the frames in contact of ``sensor``'s episodes (cached in ``cache`` when given): the marked image
+    at ``size``, the reconstruction targets (I_pure, D) at ``target_size`` (default: ``size``)."""
+    target = tuple(target_size or size)
+    key = [str(path), sensor, list(size), contact_mm, list(target)]
     if cache is not None and cache.exists():
         data = torch.load(cache, weights_only=False)
-        if data["key"] == [str(path), sensor, list(size), contact_mm]:
+        if data["key"] == key:
             return Corpus(**data["corpus"])
     _large_buffers_to_mmap()
     ds = Dataset.open(path)
@@ -162,13 +174,13 @@ def load_corpus(path: Path, sensor: str, size: tuple[int, int], contact_mm: floa
     for e, eid in enumerate(ids):
         # a handle reads only the arrays asked for (load_episode decodes every array of the episode)
         with ds.open_episode(eid) as handle:
-            _read_episode(handle, e, shapes, size, contact_mm, parts)
+            _read_episode(handle, e, shapes, size, target, contact_mm, parts)
         if (e + 1) % 50 == 0:
             print(f"read {e + 1}/{len(ids)} episodes", flush=True)
     corpus = Corpus(**{k: torch.cat(v) for k, v in parts.items()}, episode_ids=ids, shapes=shapes)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        torch.save({"key": [str(path), sensor, list(size), contact_mm], "corpus": corpus.as_dict()}, cache)
+        torch.save({"key": key, "corpus": corpus.as_dict()}, cache)
     return corpus
 
 
@@ -185,10 +197,10 @@ def _large_buffers_to_mmap() -> None:
         pass
 
 
-def _read_episode(handle: Any, e: int, shapes: list[str], size: tuple[int, int], contact_mm: float,
-                  parts: dict[str, list[torch.Tensor]]) -> None:
-    """Append the frames in contact of one episode (both pads) to ``parts``."""
-    h, w = size
+def _read_episode(handle: Any, e: int, shapes: list[str], size: tuple[int, int], target: tuple[int, ...],
+                  contact_mm: float, parts: dict[str, list[torch.Tensor]]) -> None:
+    """Append the frames in contact of one episode (both pads) to ``parts``: the marked image at ``size``,
+    I_pure and D at ``target``."""
     shape = handle.meta.name
     yaw0 = float(handle.meta.generator.settings["yaw_rad"])
     for p, pad in enumerate(PADS):
@@ -201,15 +213,17 @@ def _read_episode(handle: Any, e: int, shapes: list[str], size: tuple[int, int],
         pose[:, :3] *= 1000.0  # m -> mm
         position, yaw = indenter_in_pad(pose, pad, yaw0)
         native_h, native_w = depth_um.shape[1:3]
-        resize = lambda a: F.interpolate(torch.from_numpy(a).float(), size=(h, w), mode="area")  # noqa: E731
-        images = {k: resize(np.moveaxis(handle.read(f"tactile/{pad}/{k}")[keep], -1, 1)).round().to(torch.uint8)
-                  for k in ("marked_rgb", "pure_rgb")}
+        def resize(a: np.ndarray, hw: tuple[int, ...]) -> torch.Tensor:
+            return F.interpolate(torch.from_numpy(a).float(), size=tuple(hw), mode="area")
+
+        images = {k: resize(np.moveaxis(handle.read(f"tactile/{pad}/{k}")[keep], -1, 1), hw).round().to(torch.uint8)
+                  for k, hw in (("marked_rgb", size), ("pure_rgb", target))}
         markers = handle.read(f"tactile/{pad}/markers_px")[keep].astype(np.float32)
         markers = markers * np.array([2.0 / (native_w - 1), 2.0 / (native_h - 1)], np.float32) - 1.0
         n = len(keep)
         new = {
             "marked": images["marked_rgb"], "pure": images["pure_rgb"],
-            "depth": resize(depth_um[keep][:, None].astype(np.float32) / 1000.0).half(),
+            "depth": resize(depth_um[keep][:, None].astype(np.float32) / 1000.0, target).half(),
             "markers": torch.from_numpy(markers), "peak": torch.from_numpy(peak[keep].astype(np.float32)),
             "position": torch.from_numpy(position.astype(np.float32)),
             "yaw": torch.from_numpy(yaw.astype(np.float32)),
@@ -222,9 +236,12 @@ def _read_episode(handle: Any, e: int, shapes: list[str], size: tuple[int, int],
             parts.setdefault(k, []).append(v)
 
 
-def held_out_split(episode_ids: list[str], shapes_of: list[str], fraction: float) -> tuple[list[str], list[str]]:
+def held_out_split(episode_ids: list[str], shapes_of: list[str], fraction: float, max_train: int | None = None) \
+        -> tuple[list[str], list[str]]:
     """``(train_ids, held_ids)``: per shape, the episodes with the smallest hash positions are held out (at
-    least one when the shape has two or more), so every shape is on both sides; disjoint by construction."""
+    least one when the shape has two or more), so every shape is on both sides; disjoint by construction.
+    ``max_train``: keep at most this many training episodes per shape (the next ones in hash order), so
+    training on fewer episodes can be measured against the same held-out episodes."""
     by_shape: dict[str, list[str]] = {}
     for eid, shape in zip(episode_ids, shapes_of):
         by_shape.setdefault(shape, []).append(eid)
@@ -233,19 +250,24 @@ def held_out_split(episode_ids: list[str], shapes_of: list[str], fraction: float
         ids = sorted(ids, key=split_position)
         n_held = min(len(ids) - 1, max(1, round(fraction * len(ids)))) if len(ids) > 1 else 0
         held += ids[:n_held]
-        train += ids[n_held:]
+        train += ids[n_held:] if max_train is None else ids[n_held:n_held + max_train]
     return sorted(train), sorted(held)
 
 
-def split_masks(corpus: Corpus, fraction: float) -> tuple[torch.Tensor, torch.Tensor, list[str], list[str]]:
-    """Sample masks (train, held out) of ``corpus`` by episode, and the episode ids on each side."""
+def split_masks(corpus: Corpus, fraction: float, max_train: int | None = None) \
+        -> tuple[torch.Tensor, torch.Tensor, list[str], list[str]]:
+    """Sample masks (train, held out) of ``corpus`` by episode, and the episode ids on each side (with
+    ``max_train``, the samples of the training episodes left out are in neither mask)."""
     first = {int(e): int(lab) for e, lab in zip(corpus.episode.tolist(), corpus.label.tolist())}
     present = sorted(first)
     ids = [corpus.episode_ids[e] for e in present]
-    train_ids, held_ids = held_out_split(ids, [corpus.shapes[first[e]] for e in present], fraction)
-    held_idx = torch.tensor([corpus.episode_ids.index(e) for e in held_ids], dtype=torch.int64)
-    held = torch.isin(corpus.episode, held_idx)
-    return ~held, held, train_ids, held_ids
+    train_ids, held_ids = held_out_split(ids, [corpus.shapes[first[e]] for e in present], fraction, max_train)
+    position = {eid: i for i, eid in enumerate(corpus.episode_ids)}
+
+    def mask(side: list[str]) -> torch.Tensor:
+        return torch.isin(corpus.episode, torch.tensor([position[e] for e in side], dtype=torch.int64))
+
+    return mask(train_ids), mask(held_ids), train_ids, held_ids
 
 
 # ----------------------------------------------------------------------------------------------- training
@@ -267,10 +289,16 @@ def partners(corpus: Corpus, idx: torch.Tensor, gen: torch.Generator) -> torch.T
 
 
 def make_model(corpus: Corpus, train_mask: torch.Tensor, size: tuple[int, int], seed: int,
-               widths: tuple[int, ...] = EncoderConfig.widths, pool: str = "avg") -> TactileEncoder:
+               widths: tuple[int, ...] = EncoderConfig.widths, pool: str = "avg", space_to_depth: int = 1) \
+        -> TactileEncoder:
+    """A new encoder for ``corpus`` (input ``size``; the decoder's output is the size of the corpus's
+    I_pure), its input normalisation taken from training images."""
     torch.manual_seed(seed)
+    target = tuple(corpus.pure.shape[-2:])
     model = TactileEncoder(EncoderConfig(height=size[0], width=size[1], n_markers=corpus.markers.shape[1],
-                                         widths=tuple(widths), pool=pool))
+                                         widths=tuple(widths), pool=pool, space_to_depth=space_to_depth,
+                                         **({} if target == tuple(size) else
+                                            {"target_height": target[0], "target_width": target[1]})))
     images = corpus.marked[train_mask][:2000].float() / 255.0
     model.mean.copy_(images.mean((0, 2, 3)).view(1, 3, 1, 1))
     model.std.copy_(images.std((0, 2, 3)).clamp_min(1e-3).view(1, 3, 1, 1))
@@ -590,13 +618,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     else:
         data = args.data
     t0 = time.perf_counter()
-    cache = args.out_dir / f"cache-{args.sensor}-{size[0]}x{size[1]}-{Path(data).resolve().name}.pt"
-    corpus = load_corpus(Path(data), args.sensor, size, args.contact_mm, cache)
-    train_mask, held_mask, train_ids, held_ids = split_masks(corpus, args.held_out)
+    target = tuple(args.target_size or size)
+    cache = args.out_dir / (f"cache-{args.sensor}-{size[0]}x{size[1]}-{target[0]}x{target[1]}-"
+                            f"{Path(data).resolve().name}.pt")
+    corpus = load_corpus(Path(data), args.sensor, size, args.contact_mm, cache, target_size=target)
+    train_mask, held_mask, train_ids, held_ids = split_masks(corpus, args.held_out, args.train_episodes)
     read_s = time.perf_counter() - t0
     print(f"{len(corpus.label)} samples in contact from {len(corpus.episode_ids)} episodes, {len(corpus.shapes)} "
           f"shapes; {len(train_ids)} training / {len(held_ids)} held-out episodes ({read_s:.0f} s to read)", flush=True)
-    arch = {"widths": tuple(args.widths), "pool": args.pool}
+    arch = {"widths": tuple(args.widths), "pool": args.pool, "space_to_depth": args.space_to_depth}
     model = make_model(corpus, train_mask, size, args.seed, **arch)
     random_model = make_model(corpus, train_mask, size, args.seed + 1, **arch)  # same architecture, never trained
     weights = RecipeWeights(consistency=args.consistency_weight, temperature=args.temperature)
@@ -621,11 +651,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "recipe": "examples/pretrain_encoder.py", "command": "python examples/pretrain_encoder.py "
         + " ".join(sys.argv[1:] if argv is None else argv),
         "machine": machine(), "threads": args.threads, "sensor": args.sensor, "data": str(data),
-        "image_size": list(size), "contact_mm": args.contact_mm, "steps": len(history), "max_steps": args.steps,
+        "image_size": list(size), "target_size": list(target), "contact_mm": args.contact_mm,
+        "steps": len(history), "max_steps": args.steps,
         "max_minutes": args.max_minutes, "batch_size": args.batch_size,
         "encoder": model.config.to_dict(), "augment": asdict(augment), "weights": asdict(weights),
         "shapes": corpus.shapes, "symmetry_order": {s: rotational_symmetry(s) for s in corpus.shapes},
-        "train_episodes": len(train_ids), "held_out_episodes": len(held_ids),
+        "train_episodes": len(train_ids), "train_episodes_per_shape_cap": args.train_episodes,
+        "held_out_episodes": len(held_ids),
         "train_samples": int(train_mask.sum()), "held_out_samples": int(held_mask.sum()),
         "held_out_episode_ids": held_ids,
         "loss_first": {k: float(np.mean([h[k] for h in history[:window]])) for k in history[0]},

@@ -10,7 +10,8 @@
   average and maximum side by side to 256 with ``pool="avgmax"``, the recipe's choice) with
   the paper's three pathways as heads: shape (I_pure reconstruction, weighted toward the contact region, and
   an episode-consistency term), contact (depth map D weighted toward the contact, marker positions M, peak
-  depth) and pose (symmetry-aware).
+  depth) and pose (symmetry-aware). ``space_to_depth=2`` feeds a 96 x 128 image as 2 x 2 pixel blocks at
+  about the cost of 48 x 64, and ``target_height``/``target_width`` keep the decoder's targets small.
 * ``augment``: what suits tactile images: a gain and offset per colour channel, pixel noise, and small
   shifts and turns by any angle (only for the second, consistency view, whose targets are not regressed);
   no flips, which would turn a chiral shape (pacman, star) into another image without changing its label.
@@ -119,7 +120,12 @@ def yaw_error_deg(pred: torch.Tensor, yaw_rad: torch.Tensor, order: torch.Tensor
 @dataclass(frozen=True)
 class EncoderConfig:
     """Architecture of ``TactileEncoder``: input ``height x width``, ``n_markers`` of the sensor, channel
-    widths of the four stages (the last is the feature size)."""
+    widths of the stages (each halves the image; the last width is the feature size per pooling), and the
+    size ``target_height x target_width`` at which the decoder reconstructs I_pure and D (0: the input's).
+
+    A larger input with one more stage costs little (the extra stage runs on few channels) and keeps the
+    imprint's fine curvature, while the reconstruction targets can stay small: what the decoder must
+    rebuild is the shape's outline, not the pixels."""
 
     height: int = 48
     width: int = 64
@@ -128,10 +134,25 @@ class EncoderConfig:
     projection_dim: int = 64
     decoder_width: int = 64
     pool: str = "avg"  # "avg": global average of the last map; "avgmax": average and maximum side by side
+    target_height: int = 0
+    target_width: int = 0
+    space_to_depth: int = 1  # the input's f x f pixel blocks become 3 f^2 channels before the first stage
 
     def __post_init__(self) -> None:
         if self.pool not in POOLS:
             raise ValueError(f"pool {self.pool!r}: one of {POOLS}")
+        if (self.target_height > 0) != (self.target_width > 0) or self.target_height < 0 or self.target_width < 0:
+            raise ValueError(f"target size {self.target_height} x {self.target_width}: both positive, or both 0")
+        f = self.space_to_depth
+        if f < 1 or self.height % f or self.width % f:
+            raise ValueError(f"space_to_depth {f}: a positive divisor of the input size {self.height} x {self.width}")
+
+    @property
+    def target_hw(self) -> tuple[int, int]:
+        """Height and width of the reconstructed I_pure and D."""
+        if self.target_height:
+            return self.target_height, self.target_width
+        return self.height, self.width
 
     @property
     def feature_dim(self) -> int:
@@ -156,7 +177,7 @@ class TactileEncoder(nn.Module):
         super().__init__()
         self.config = config
         stages: list[nn.Module] = []
-        c_in = 3
+        c_in = 3 * config.space_to_depth ** 2
         for c in config.widths:
             stages += [conv_bn(c_in, c, 2), conv_bn(c, c, 1)]
             c_in = c
@@ -166,7 +187,8 @@ class TactileEncoder(nn.Module):
         self.register_buffer("std", torch.full((1, 3, 1, 1), 0.25))
         # the decoder starts from the feature vector (not the feature map), so what it reconstructs must be
         # in the features a probe reads
-        self.seed_hw = (math.ceil(config.height / 16), math.ceil(config.width / 16))
+        target_h, target_w = config.target_hw
+        self.seed_hw = (math.ceil(target_h / 16), math.ceil(target_w / 16))
         c = config.decoder_width
         self.seed = nn.Linear(feat, c * self.seed_hw[0] * self.seed_hw[1])
         ups: list[nn.Module] = []
@@ -183,6 +205,10 @@ class TactileEncoder(nn.Module):
     def encode(self, marked_rgb: torch.Tensor) -> torch.Tensor:
         """(B, 3, H, W) in [0, 1] -> (B, F) features (what a probe or a policy keeps)."""
         x = (marked_rgb - self.mean) / self.std
+        if self.config.space_to_depth > 1:
+            # lossless: each f x f block of pixels becomes channels, so a 2x larger image keeps its fine
+            # detail (the imprint's curvature) at the cost of a 2x smaller one
+            x = F.pixel_unshuffle(x, self.config.space_to_depth)
         fmap = self.backbone(x)
         avg = F.adaptive_avg_pool2d(fmap, 1).flatten(1)
         if self.config.pool == "avg":
@@ -193,7 +219,7 @@ class TactileEncoder(nn.Module):
 
     def forward(self, marked_rgb: torch.Tensor) -> dict[str, torch.Tensor]:
         z = self.encode(marked_rgb)
-        h, w = self.config.height, self.config.width
+        h, w = self.config.target_hw
         image = self.decoder(self.seed(z).view(-1, self.config.decoder_width, *self.seed_hw))[..., :h, :w]
         contact = self.contact_head(z)
         pose = self.pose_head(z)

@@ -242,9 +242,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise SystemExit("--variant vision_encoder needs --encoder PATH (a checkpoint of examples/pretrain_encoder.py)")
     width, height = (int(v) for v in args.camera_input.lower().split("x"))
     cameras = () if args.cameras == "none" else tuple(args.cameras.split(","))
+    encoder = encoder_config(args.encoder) if args.variant == "vision_encoder" else None
+    tactile = {"tactile_hw": (int(encoder["height"]), int(encoder["width"]))} if encoder else {}
     config = PolicyConfig(variant=args.variant, cameras=cameras, camera_hw=(height, width), chunk=args.chunk,
-                          rate_hz=args.rate_hz, d_model=args.d_model,
-                          encoder=encoder_config(args.encoder) if args.variant == "vision_encoder" else None)
+                          rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, **tactile)
     log_file = open(out / "train.log", "a")
 
     def log(message: str) -> None:

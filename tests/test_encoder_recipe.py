@@ -12,6 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SHAPES = ("cross", "pacman", "sphere")
@@ -42,8 +43,8 @@ def recipe() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def corpus(recipe: ModuleType, tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    """Three shapes x three episodes x 14 frames of GelSight Mini, read at 24 x 32."""
+def corpus_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three shapes x three episodes x 14 frames of GelSight Mini."""
     from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
     from univtac_data.storage import DatasetWriter
 
@@ -53,7 +54,13 @@ def corpus(recipe: ModuleType, tmp_path_factory: pytest.TempPathFactory):  # typ
         for k in range(3):
             writer.add(run_indenter_episode(IndenterEpisodeSpec("gelsight_mini", shape, k, frames=14)))
     writer.close()
-    return recipe.load_corpus(root, "gelsight_mini", (24, 32), 0.01, cache=root.parent / "cache.pt")
+    return root
+
+
+@pytest.fixture(scope="module")
+def corpus(recipe: ModuleType, corpus_root: Path):  # type: ignore[no-untyped-def]
+    """The corpus read at 24 x 32."""
+    return recipe.load_corpus(corpus_root, "gelsight_mini", (24, 32), 0.01, cache=corpus_root.parent / "cache.pt")
 
 
 def test_probe_never_sees_frames_of_its_test_episodes(  # type: ignore[no-untyped-def]
@@ -186,3 +193,64 @@ def test_average_and_maximum_pooled_features(  # type: ignore[no-untyped-def]
     assert enc.EncoderConfig(**{**old, "widths": tuple(old["widths"])}).pool == "avg"
     with pytest.raises(ValueError):
         enc.EncoderConfig(pool="median")
+
+
+def test_fewer_training_episodes_keep_the_same_held_out_episodes(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus) -> None:
+    train, held, train_ids, held_ids = recipe.split_masks(corpus, 0.34)
+    few_train, few_held, few_train_ids, few_held_ids = recipe.split_masks(corpus, 0.34, max_train=1)
+    assert few_held_ids == held_ids and torch.equal(few_held, held)
+    assert set(few_train_ids) < set(train_ids) and not set(few_train_ids) & set(held_ids)
+    per_shape = [i.split("-")[1] for i in few_train_ids]
+    assert sorted(per_shape) == sorted(SHAPES)  # one training episode of each shape
+    # the samples of the episodes left out are in neither mask, and the training mask holds exactly its episodes
+    assert not (few_train & few_held).any() and int((few_train | few_held).sum()) < len(corpus.label)
+    assert {corpus.episode_ids[e] for e in corpus.episode[few_train].tolist()} == set(few_train_ids)
+
+
+def test_larger_input_with_small_reconstruction_targets(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus, corpus_root: Path, tmp_path: Path) -> None:
+    """A 48 x 64 input fed as 2 x 2 pixel blocks (space to depth) with 24 x 32 targets: the corpus holds each
+    at its size, the decoder rebuilds the targets' size, training runs, and the checkpoint reloads."""
+    enc = load("tactile_encoder")
+    big = recipe.load_corpus(corpus_root, "gelsight_mini", (48, 64), 0.01, target_size=(24, 32))
+    assert big.marked.shape[1:] == (3, 48, 64) and big.pure.shape[1:] == (3, 24, 32)
+    assert big.depth.shape[1:] == (1, 24, 32) and torch.equal(big.label, corpus.label)
+    assert torch.equal(big.pure, corpus.pure) and torch.equal(big.depth, corpus.depth)  # same targets
+    # the larger marked image, averaged over 2 x 2 blocks, is the small one (area resizing)
+    assert float((F.avg_pool2d(big.marked.float(), 2) - corpus.marked.float()).abs().max()) <= 1.0
+    train, _, _, _ = recipe.split_masks(big, 0.34)
+    model = recipe.make_model(big, train, (48, 64), seed=0, space_to_depth=2)
+    assert model.config.target_hw == (24, 32) and model.backbone[0][0].in_channels == 12
+    history = recipe.train(model, big, train, steps=3, batch_size=8, lr=1e-3, seed=0, log_every=1000)
+    assert all(np.isfinite(h["total"]) for h in history)
+    model.eval()
+    with torch.no_grad():
+        out = model(big.marked[:4].float() / 255.0)
+    assert out["pure_rgb"].shape == (4, 3, 24, 32) and out["features"].shape == (4, model.config.feature_dim)
+    # the first stage sees every pixel: changing one pixel inside a 2 x 2 block changes the features
+    image = big.marked[:1].float() / 255.0
+    nudged = image.clone()
+    nudged[0, :, 21, 33] += 0.5
+    with torch.no_grad():
+        assert not torch.allclose(model.encode(image), model.encode(nudged))
+    path = tmp_path / "encoder.pt"
+    recipe.save_checkpoint(model, path, big.shapes)
+    with torch.no_grad():
+        assert torch.equal(recipe.load_checkpoint(path)(big.marked[:4].float() / 255.0)["pure_rgb"], out["pure_rgb"])
+    for bad in ({"space_to_depth": 0}, {"height": 47, "space_to_depth": 2}, {"target_height": 24}):
+        with pytest.raises(ValueError):
+            enc.EncoderConfig(**bad)
+
+
+def test_a_policy_feeds_the_frozen_encoder_images_of_its_input_size() -> None:
+    """A policy's tactile images are resized to ``tactile_hw``: an encoder trained on another size must be
+    refused, not fed images whose imprint is at another scale."""
+    load("tactile_encoder")
+    act = load("act_policy")
+    enc = load("tactile_encoder").EncoderConfig(height=96, width=128, space_to_depth=2, target_height=48,
+                                                target_width=64).to_dict()
+    with pytest.raises(ValueError, match="tactile_hw"):
+        act.PolicyConfig(variant="vision_encoder", encoder=enc)
+    assert act.PolicyConfig(variant="vision_encoder", encoder=enc, tactile_hw=(96, 128)).tactile_hw == (96, 128)
+    assert act.PolicyConfig(variant="vision_encoder", encoder=load("tactile_encoder").EncoderConfig().to_dict())

@@ -60,7 +60,8 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import j0, j1
 
-__all__ = ["KernelSet", "convolve", "kernel_set", "layer_profile", "layer_ratios", "padded_inverse", "padded_spectrum"]
+__all__ = ["KernelSet", "convolve", "kernel_set", "layer_profile", "layer_ratios", "padded_inverse", "padded_spectrum",
+           "strang_eigenvalues"]
 
 # T[g, Jn](rho) is tabulated on [0, LAYER_RHO_MAX] and taken as g(0) / rho beyond, where the two differ by
 # < 2e-6 (relative 1e-4 or less); the integrands have decayed below 1e-25 at s = LAYER_S_MAX.
@@ -68,6 +69,16 @@ LAYER_RHO_MAX = 16.0
 LAYER_S_MAX = 30.0
 _LAYER_RHO_STEP = 0.01
 _LAYER_S_STEP = 0.005
+
+
+def strang_eigenvalues(centred: np.ndarray) -> np.ndarray:
+    """Eigenvalues, as a (ny, nx // 2 + 1) float64 rfft2 spectrum, of Strang's circulant approximation of the
+    Toeplitz operator whose coefficients at offsets -(n-1)..(n-1) are ``centred`` (2 ny - 1, 2 nx - 1): the
+    coefficients within half the grid of each cell, wrapped onto the (ny, nx) grid."""
+    ny, nx = (centred.shape[0] + 1) // 2, (centred.shape[1] + 1) // 2
+    oy, ox = np.arange(ny), np.arange(nx)
+    oy, ox = np.where(oy <= ny // 2, oy, oy - ny), np.where(ox <= nx // 2, ox, ox - nx)
+    return np.fft.rfft2(centred[(ny - 1 + oy)[:, None], (nx - 1 + ox)[None, :]].astype(np.float64)).real
 
 
 def layer_ratios(s: np.ndarray, nu: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -230,11 +241,7 @@ class KernelSet:
         ``shear.circulant_inverse`` for the tangential one). Eigenvalues below a thousandth of the largest
         (the layer's far field is negative) are raised to it, so the multipliers stay positive."""
         if self._zz_preconditioner is None:
-            ny, nx = self.shape
-            oy, ox = np.arange(ny), np.arange(nx)
-            oy, ox = np.where(oy <= ny // 2, oy, oy - ny), np.where(ox <= nx // 2, ox, ox - nx)
-            wrapped = self.zz_centred[(ny - 1 + oy)[:, None], (nx - 1 + ox)[None, :]].astype(np.float64)
-            eigen = np.fft.rfft2(wrapped).real
+            eigen = strang_eigenvalues(self.zz_centred)
             inverse = (1.0 / np.maximum(eigen, 1e-3 * float(eigen.max()))).astype(np.float32)
             inverse.flags.writeable = False
             self._zz_preconditioner = inverse

@@ -61,6 +61,7 @@ from tactile_encoder import (  # noqa: E402
 
 from univtac_data.loaders.split import split_position  # noqa: E402
 from univtac_data.storage import Dataset  # noqa: E402
+from univtac_data.storage.errors import DatasetError  # noqa: E402
 
 PADS = ("left", "right")
 
@@ -109,7 +110,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--log-every", type=int, default=50)
     p.add_argument("--out-json", type=Path, help="write the result here")
     p.add_argument("--figure", type=Path, help="write the probe chart here")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    sizes = [*args.image_size, *(args.target_size or ())]
+    if min(sizes) < 1:
+        p.error(f"--image-size and --target-size must be positive (got {' '.join(map(str, sizes))})")
+    if args.space_to_depth < 1 or args.image_size[0] % args.space_to_depth or args.image_size[1] % args.space_to_depth:
+        p.error(f"--space-to-depth {args.space_to_depth}: must be a positive divisor of --image-size "
+                f"{args.image_size[0]} x {args.image_size[1]}")
+    if args.train_episodes is not None and args.train_episodes < 1:
+        p.error(f"--train-episodes must be at least 1 (got {args.train_episodes})")
+    return args
 
 
 # ----------------------------------------------------------------------------------------------- corpus
@@ -621,7 +631,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     target = tuple(args.target_size or size)
     cache = args.out_dir / (f"cache-{args.sensor}-{size[0]}x{size[1]}-{target[0]}x{target[1]}-"
                             f"{Path(data).resolve().name}.pt")
-    corpus = load_corpus(Path(data), args.sensor, size, args.contact_mm, cache, target_size=target)
+    try:
+        corpus = load_corpus(Path(data), args.sensor, size, args.contact_mm, cache, target_size=target)
+    except DatasetError as error:
+        raise SystemExit(f"pretrain_encoder: {error}") from None
     train_mask, held_mask, train_ids, held_ids = split_masks(corpus, args.held_out, args.train_episodes)
     read_s = time.perf_counter() - t0
     print(f"{len(corpus.label)} samples in contact from {len(corpus.episode_ids)} episodes, {len(corpus.shapes)} "

@@ -254,3 +254,23 @@ def test_a_policy_feeds_the_frozen_encoder_images_of_its_input_size() -> None:
         act.PolicyConfig(variant="vision_encoder", encoder=enc)
     assert act.PolicyConfig(variant="vision_encoder", encoder=enc, tactile_hw=(96, 128)).tactile_hw == (96, 128)
     assert act.PolicyConfig(variant="vision_encoder", encoder=load("tactile_encoder").EncoderConfig().to_dict())
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--space-to-depth", "5"], "--space-to-depth 5: must be a positive divisor"),
+    (["--target-size", "0", "64"], "--image-size and --target-size must be positive"),
+    (["--train-episodes", "0"], "--train-episodes must be at least 1"),
+])
+def test_recipe_refuses_bad_options_in_one_line(args: list[str], message: str,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    recipe = load("pretrain_encoder")
+    with pytest.raises(SystemExit) as stop:
+        recipe.parse_args(["--data", "corpus", *args])
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_recipe_names_a_missing_corpus_in_one_line(tmp_path: Path) -> None:
+    recipe = load("pretrain_encoder")
+    with pytest.raises(SystemExit) as stop:
+        recipe.main(["--data", str(tmp_path / "missing"), "--out-dir", str(tmp_path / "out"), "--threads", "1"])
+    assert str(stop.value) == f"pretrain_encoder: {tmp_path / 'missing'}: no such file or directory"

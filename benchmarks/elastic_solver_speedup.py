@@ -9,7 +9,8 @@ passes), each run twice in the same process, once with today's ``solve_elastic``
 swapped in. The passes interleave all rows and both solvers, so a slow spell of a shared machine falls on both.
 Also the solves' mean iterations and CPU ms per call.
 
-Writes benchmarks/results/elastic_solver_speedup.json.
+Writes benchmarks/results/elastic_solver_speedup.json and docs/figures/elastic_solver_speedup.png (``--replot``:
+redraw the chart from the committed JSON).
 """
 
 from __future__ import annotations
@@ -29,10 +30,11 @@ import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 from types import ModuleType  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from common import RESULTS, ROOT, machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+from common import FIGURES, RESULTS, ROOT, machine  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 from generate_throughput import one, rate_of  # noqa: E402
 
 import univtac_data.generators.tactile.contact_elastic as contact_elastic  # noqa: E402
@@ -77,11 +79,41 @@ def counted(solve: Callable[..., object], tally: dict[str, float]) -> Callable[.
     return run
 
 
+def plot(result: dict[str, Any]) -> None:
+    """Frames per CPU-second of each elastic row with the baseline and today's solver, side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = result["rows"]
+    labels = [f"{r['sensor']}\n{r['gel']}" for r in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for offset, solver, label in ((-0.2, "baseline", f"before ({result['baseline_commit']})"), (0.2, "today", "today")):
+        ax.bar(x + offset, [r[solver]["frames_per_s_per_core"] for r in rows], 0.4, label=label)
+    for i, r in enumerate(rows):
+        ax.text(i + 0.2, r["today"]["frames_per_s_per_core"], f"{r['speedup']:.2f}x", ha="center", va="bottom",
+                fontsize=8)
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_ylabel("frames / CPU-second, one core (best pass)")
+    ax.set_title("Elastic indenter generation: the solver before and after preconditioning (paired passes)")
+    ax.legend()
+    fig.tight_layout()
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / "elastic_solver_speedup.png", dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--passes", type=int, default=3)
     parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--replot", action="store_true", help="redraw the chart from the committed JSON")
     args = parser.parse_args()
+    if args.replot:
+        plot(json.loads((RESULTS / "elastic_solver_speedup.json").read_text()))
+        return
     keep_freed_memory()  # as the generator's workers do
     solvers = {"baseline": baseline_module(BASELINE_COMMIT).solve_elastic, "today": contact_elastic.solve_elastic}
     configs = [(sensor, gel, solver) for sensor in SENSORS for gel in GELS for solver in solvers]
@@ -126,6 +158,7 @@ def main() -> None:
               "passes": args.passes, "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "elastic_solver_speedup.json").write_text(json.dumps(result, indent=2) + "\n")
+    plot(result)
     print(json.dumps(rows, indent=2))
 
 

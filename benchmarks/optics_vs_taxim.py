@@ -28,6 +28,12 @@ misses come from. The calibrated render is timed on the wall clock and on this t
 
 Writes benchmarks/results/optics_vs_taxim.json and docs/figures/optics_vs_taxim.png (``--replot``: the chart
 from the JSON).
+
+``--gel-sweep`` asks instead whether any setting of our gel closes the gap to 35 dB: the change-image PSNR of
+every case (no timing) for the elastic solver on a bonded layer over thickness and Poisson's ratio, for both
+default models with their depth map blurred by Gaussians up to Taxim's own final blur and beyond, and for the
+geometric model with its sink-in cut off at other distances (``ContactConfig.tail_start``). Writes
+benchmarks/results/optics_gel_sweep.json and docs/figures/optics_gel_sweep.png.
 """
 
 from __future__ import annotations
@@ -168,9 +174,16 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="two cases, one depth: a smoke run")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--replot", action="store_true", help="redraw the chart from the committed JSON")
+    parser.add_argument("--gel-sweep", action="store_true",
+                        help="PSNR over gel thickness, Poisson's ratio, depth blur and sink-in reach (no timing)")
     args = parser.parse_args()
     if args.replot:
         chart(json.loads((RESULTS / "optics_vs_taxim.json").read_text())["cases"], FIGURES / "optics_vs_taxim.png")
+        if (RESULTS / "optics_gel_sweep.json").exists():
+            sweep_chart(json.loads((RESULTS / "optics_gel_sweep.json").read_text()), FIGURES / "optics_gel_sweep.png")
+        return
+    if args.gel_sweep:
+        gel_sweep()
         return
     from taxim.calibration import CALIB_GELSIGHT_MINI
     from taxim.taxim_jax import TaximJax
@@ -283,6 +296,107 @@ def main() -> None:
     print(json.dumps(summary, indent=2))
     if not args.quick:
         chart(rows, FIGURES / "optics_vs_taxim.png")
+
+
+def taxim_changes(taxim, shapes: dict[str, np.ndarray], depths: tuple[float, ...]) -> dict[tuple[str, float], np.ndarray]:  # type: ignore[no-untyped-def]
+    """Taxim's change image (RGB grey levels minus its untouched gel) for every case."""
+    flat = np.asarray(taxim.render(np.full((H, W), FAR_MM, np.float32), with_shadow=False), dtype=np.float64) * 255.0
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, heights in shapes.items():
+            for depth in depths:
+                image = taxim.render(heights.astype(np.float32), with_shadow=False, press_depth=depth)
+                out[name, depth] = np.asarray(image, dtype=np.float64) * 255.0 - flat
+    return out
+
+
+def gel_sweep() -> None:
+    """Change-image PSNR of every case over the gel's parameters (see the module docstring)."""
+    from taxim.calibration import CALIB_GELSIGHT_MINI
+    from taxim.taxim_jax import TaximJax
+
+    profile, calib = field_profile()
+    pitch = profile.mm_per_px_x
+    shapes = rigid_heights(pitch)
+    theirs = taxim_changes(TaximJax(calib_folder=CALIB_GELSIGHT_MINI), shapes, (0.2, 0.6, 1.0))
+    flat_ours = calib.render(np.zeros((H, W)), (pitch, pitch)).astype(np.float64)
+
+    def scores(prof, contact: ContactConfig, blur_px: float = 0.0) -> dict[str, object]:  # type: ignore[no-untyped-def]
+        config = TactileConfig(optics="calibrated", calibration=calib, contact=contact)
+        per_case = {}
+        for (name, depth), change_theirs in theirs.items():
+            depth_mm = simulate_frame(prof, shapes[name] - depth, config=config).depth_mm
+            if blur_px > 0.0:
+                depth_mm = gaussian_filter(depth_mm, blur_px, mode="nearest")
+            change_ours = calib.render(depth_mm, (pitch, pitch)).astype(np.float64) - flat_ours
+            per_case[f"{name} {depth} mm"] = round(psnr(change_ours, change_theirs), 2)
+        values = list(per_case.values())
+        return {"change_psnr_db_min": min(values), "change_psnr_db_median": float(np.median(values)),
+                "cases_below_35_db": [k for k, v in per_case.items() if v < 35.0], "per_case": per_case}
+
+    layer = []
+    for nu in (0.4, 0.48, 0.499):
+        for thickness in (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0):
+            material = profile.material.model_copy(update={"poisson_ratio": nu})
+            prof = profile.model_copy(update={"gel_thickness_mm": thickness, "material": material})
+            layer.append({"thickness_mm": thickness, "poisson_ratio": nu,
+                          **scores(prof, ContactConfig(method="elastic", gel="layer"))})
+            print(f"layer {thickness} mm, nu {nu}: min {layer[-1]['change_psnr_db_min']} dB", flush=True)
+    blur = [{"model": method, "blur_px": sigma, **scores(profile, ContactConfig(method=method), sigma)}
+            for method in ("geometric", "elastic") for sigma in (0.0, 1.0, 2.0)]
+    tail = [{"tail_start": t, **scores(profile, ContactConfig(method="geometric", tail_start=t))}
+            for t in (1.2, 2.0, 3.0)]
+    result = {
+        "machine": machine(threads_used=1, packages=("numpy", "scipy", "numba", "jax", "taxim")),
+        "settings": {"image": [W, H], "pitch_mm": pitch, "taxim": "TaximJax 1.4.1, gelsight_mini calibration, "
+                     "with_shadow=False", "taxim_final_blur_px": 1.0,
+                     "defaults": {"gel_thickness_mm": get_sensor("gelsight_mini").gel_thickness_mm,
+                                  "poisson_ratio": profile.material.poisson_ratio,
+                                  "tail_start": ContactConfig().tail_start}},
+        "layer": layer, "blur": blur, "tail": tail,
+        "best_layer": max(layer, key=lambda r: r["change_psnr_db_min"]),
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "optics_gel_sweep.json").write_text(json.dumps(result, indent=2) + "\n")
+    sweep_chart(result, FIGURES / "optics_gel_sweep.png")
+    best = result["best_layer"]
+    print(f"best layer: {best['thickness_mm']} mm, nu {best['poisson_ratio']}: min {best['change_psnr_db_min']} dB; "
+          + "; ".join(f"{r['model']} blur {r['blur_px']} px: min {r['change_psnr_db_min']} dB" for r in blur))
+
+
+def sweep_chart(result: dict, path) -> None:  # type: ignore[no-untyped-def,type-arg]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for nu in sorted({r["poisson_ratio"] for r in result["layer"]}):
+        rows = [r for r in result["layer"] if r["poisson_ratio"] == nu]
+        axes[0].plot([r["thickness_mm"] for r in rows], [r["change_psnr_db_min"] for r in rows], "o-",
+                     label=f"bonded layer, nu = {nu}: worst case")
+    for r in result["blur"]:
+        if r["blur_px"] == 0.0:
+            axes[0].axhline(r["change_psnr_db_min"], ls=":", color="C3" if r["model"] == "elastic" else "C4",
+                            label=f"{r['model']}, half-space sink-in (default): worst case")
+    axes[0].axhline(35.0, color="k", lw=0.8, ls="--", label="goal 35 dB")
+    axes[0].set_xlabel("gel layer thickness (mm)")
+    axes[0].set_ylabel("change-image PSNR vs Taxim (dB)")
+    axes[0].legend(fontsize=7)
+    axes[0].set_title("Worst of 15 presses, elastic solver")
+    cases = list(result["layer"][0]["per_case"])
+    best = result["best_layer"]
+    xs = np.arange(len(cases))
+    series = [("elastic, half-space", next(r for r in result["blur"] if r["model"] == "elastic" and r["blur_px"] == 0)),
+              ("geometric, half-space", next(r for r in result["blur"] if r["model"] == "geometric" and r["blur_px"] == 0)),
+              (f"layer {best['thickness_mm']:g} mm, nu {best['poisson_ratio']}", best)]
+    for k, (label, row) in enumerate(series):
+        axes[1].bar(xs + (k - 1) * 0.27, [row["per_case"][c] for c in cases], 0.27, label=label)
+    axes[1].axhline(35.0, color="k", lw=0.8, ls="--")
+    axes[1].set_ylim(25.0, 45.0)
+    axes[1].set_xticks(xs, cases, rotation=90, fontsize=7)
+    axes[1].set_ylabel("change-image PSNR (dB)")
+    axes[1].legend(fontsize=7)
+    axes[1].set_title("Per press")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
 
 
 def chart(rows: list[dict], path) -> None:  # type: ignore[no-untyped-def,type-arg]

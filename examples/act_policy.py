@@ -1,7 +1,8 @@
 """A small ACT-style action-chunking policy in plain torch, and its runtime for ``univtac-data evaluate``.
 
-The network (``ChunkPolicyNet``) reads one observation and predicts the next ``chunk`` absolute actions
-(x, y, z m; quaternion w, x, y, z; opening m, all normalised by the demonstrations' mean and std), as ACT
+The network (``ChunkPolicyNet``) reads one observation and predicts the next ``chunk`` actions (x, y, z m;
+quaternion w, x, y, z, absolute; the opening m, absolute or, with ``PolicyConfig.opening = "relative"``, minus
+the measured opening; all normalised by the demonstrations' mean and std), as ACT
 does without its CVAE: a transformer encoder over observation tokens, a transformer decoder with one learned
 query per action of the chunk. Tokens:
 
@@ -39,6 +40,7 @@ from torch import nn
 from torch.nn import functional as F
 
 VARIANTS = ("vision", "vision_tactile", "vision_encoder")
+OPENING_TARGETS = ("absolute", "relative")
 PADS = ("left", "right")
 CHECKPOINT_ENV = "UNIVTAC_POLICY_CHECKPOINT"
 ENSEMBLE_K_ENV = "UNIVTAC_POLICY_ENSEMBLE_K"
@@ -62,11 +64,16 @@ class PolicyConfig:
     feedforward: int = 512
     dropout: float = 0.1
     ensemble_k: float = 0.01                   # temporal-ensembling weight exp(-k i), i = 0 the oldest
+    # what the opening column of a chunk is: "absolute" (the commanded width, m) or "relative" (the commanded
+    # width minus the opening measured when the chunk is predicted, m). Checkpoints without it are absolute.
+    opening: str = "absolute"
     encoder: dict[str, Any] | None = field(default=None)  # EncoderConfig of the frozen encoder (vision_encoder)
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {self.variant!r})")
+        if self.opening not in OPENING_TARGETS:
+            raise ValueError(f"opening must be one of {', '.join(OPENING_TARGETS)} (got {self.opening!r})")
         if self.variant == "vision_encoder" and self.encoder is None:
             raise ValueError("the vision_encoder variant needs the encoder's config (load it with --encoder PATH)")
         if self.variant == "vision_encoder" and self.encoder is not None:
@@ -110,6 +117,30 @@ def hwc_to_chw(array: np.ndarray) -> torch.Tensor:
 # Key's opening (std 1.5 mm) and x, y (2.7-2.9 mm) by 10 mm: a normalised L1 of 0.06 was then 0.6 mm of
 # opening, and the opening the policy reads in agent_pos moved 0.05 between free and touching.
 STD_FLOOR = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-2, 1e-3)
+
+
+OPENING = 7  # the opening's column in agent_pos and in an action
+
+
+def chunk_targets(agent_pos: torch.Tensor, actions: torch.Tensor, config: PolicyConfig) -> torch.Tensor:
+    """Recorded absolute actions (N, C, 8) -> what the network learns to predict. With ``opening="relative"``
+    the opening becomes the commanded width minus the measured one in ``agent_pos`` (N, 8): a held grasp is
+    then a squeeze of about -1.4 mm whatever the object's width, one small number, where the absolute target
+    puts the grasp's depth in the 1.4 mm difference of two widths of 7-50 mm that the policy reads and predicts."""
+    if config.opening == "absolute":
+        return actions
+    targets = actions.clone()
+    targets[..., OPENING] -= agent_pos[:, None, OPENING]
+    return targets
+
+
+def absolute_chunk(chunk: np.ndarray, agent_pos: np.ndarray, config: PolicyConfig) -> np.ndarray:
+    """The inverse of ``chunk_targets`` at rollout: a predicted (C, 8) chunk -> absolute actions."""
+    if config.opening == "absolute":
+        return chunk
+    out = np.array(chunk, copy=True)
+    out[:, OPENING] += float(agent_pos[OPENING])
+    return out
 
 
 @dataclass
@@ -307,7 +338,8 @@ class ChunkPolicy:
     def predict_chunk(self, obs: dict[str, Any]) -> np.ndarray:
         """(C, 8) absolute actions (denormalised) for this step and the next C - 1."""
         pred = self.net(self.observation(obs))[0]
-        return (pred * self.norm.action_std + self.norm.action_mean).numpy()
+        chunk = (pred * self.norm.action_std + self.norm.action_mean).numpy()
+        return absolute_chunk(chunk, np.asarray(obs["agent_pos"], np.float32), self.config)
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:
         action = self.ensembler(self.predict_chunk(obs))
@@ -356,6 +388,6 @@ def parameter_count(net: nn.Module, trainable: bool = True) -> int:
     return sum(p.numel() for p in net.parameters() if p.requires_grad or not trainable)
 
 
-__all__ = ["CHECKPOINT_ENV", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
-           "TemporalEnsembler", "from_env", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
+__all__ = ["CHECKPOINT_ENV", "OPENING_TARGETS", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
+           "TemporalEnsembler", "absolute_chunk", "chunk_targets", "from_env", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
            "save_checkpoint"]

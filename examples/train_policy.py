@@ -42,8 +42,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, VARIANTS, ChunkPolicyNet, Normalization, PolicyConfig,  # noqa: E402
-                        masked_l1, parameter_count, resize_uint8, save_checkpoint)
+from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, OPENING_TARGETS, PADS, VARIANTS,  # noqa: E402
+                        ChunkPolicyNet, Normalization, PolicyConfig, chunk_targets, masked_l1, parameter_count, resize_uint8, save_checkpoint)
 
 EXAMPLES = Path(__file__).resolve().parent
 
@@ -167,8 +167,10 @@ def random_shift(images: torch.Tensor, pad: int, generator: torch.Generator) -> 
     return padded.gather(2, rows).gather(3, cols)
 
 
-def make_batch(cache: DemoCache, index: torch.Tensor, norm: Normalization, config: PolicyConfig,
-               shift_px: int, generator: torch.Generator | None) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+def make_batch(cache: DemoCache, targets: torch.Tensor, index: torch.Tensor, norm: Normalization,
+               config: PolicyConfig, shift_px: int,
+               generator: torch.Generator | None) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+    """``targets``: the (N, C, 8) chunks the network learns (``chunk_targets`` of the cache's actions)."""
     t = cache.tensors
     obs = {"agent_pos": (t["agent_pos"][index] - norm.agent_mean) / norm.agent_std}
     for name in config.cameras:
@@ -179,7 +181,7 @@ def make_batch(cache: DemoCache, index: torch.Tensor, norm: Normalization, confi
             obs[f"feat_{pad}"] = t[f"feat_{pad}"][index]
         else:
             obs[f"tactile_{pad}"] = t[f"tactile_{pad}"][index].float() / 255.0
-    actions = (t["action"][index] - norm.action_mean) / norm.action_std
+    actions = (targets[index] - norm.action_mean) / norm.action_std
     return obs, actions, t["action_is_pad"][index]
 
 
@@ -197,7 +199,8 @@ def train(cache: DemoCache, config: PolicyConfig, *, steps: int, batch_size: int
     if config.variant == "vision_encoder" and "feat_left" not in cache.tensors:
         add_encoder_features(cache, net)
     t = cache.tensors
-    norm = Normalization.fit(t["agent_pos"], t["action"], t["action_is_pad"])
+    targets = chunk_targets(t["agent_pos"], t["action"], config)
+    norm = Normalization.fit(t["agent_pos"], targets, t["action_is_pad"])
     params = [p for p in net.parameters() if p.requires_grad]
     optimiser = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda s: min(1.0, (s + 1) / 100))  # short warm-up
@@ -207,7 +210,7 @@ def train(cache: DemoCache, config: PolicyConfig, *, steps: int, batch_size: int
     start = time.perf_counter()
     for step in range(steps):
         index = torch.randint(0, len(cache), (batch_size,), generator=generator)
-        obs, actions, is_pad = make_batch(cache, index, norm, config, shift_px, generator)
+        obs, actions, is_pad = make_batch(cache, targets, index, norm, config, shift_px, generator)
         loss = masked_l1(net(obs), actions, is_pad)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
@@ -245,7 +248,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     encoder = encoder_config(args.encoder) if args.variant == "vision_encoder" else None
     tactile = {"tactile_hw": (int(encoder["height"]), int(encoder["width"]))} if encoder else {}
     config = PolicyConfig(variant=args.variant, cameras=cameras, camera_hw=(height, width), chunk=args.chunk,
-                          rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, **tactile)
+                          rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, opening=args.opening, **tactile)
     log_file = open(out / "train.log", "a")
 
     def log(message: str) -> None:
@@ -269,7 +272,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
         "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
         "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
-        "lr": args.lr, "seed": args.seed, "camera_size": args.camera_size, "cameras": list(cameras),
+        "lr": args.lr, "seed": args.seed, "opening": config.opening, "camera_size": args.camera_size, "cameras": list(cameras),
         "trainable_parameters": parameter_count(net), "encoder": args.encoder,
         "read_s": t_read, "train_s": t_train, "threads": args.threads,
         "loss_first_100": float(np.mean(losses[:100])), "loss_last_100": float(np.mean(losses[-100:])),
@@ -373,9 +376,51 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "loss_first_100": train_s["loss_first_100"], "loss_last_100": train_s["loss_last_100"],
             "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
             "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
+            "seed": train_s.get("seed", 0), "opening": train_s.get("opening", "absolute"),
         })
     order = {v: k for k, v in enumerate(VARIANTS)}
-    return sorted(rows, key=lambda r: (r["task"], order[r["variant"]]))
+    return sorted(rows, key=lambda r: (r["task"], order[r["variant"]], r["seed"]))
+
+
+def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per task and variant: the rollouts of every training seed together, with each seed's own rate
+    beside them (the binomial interval of the pool does not hold the spread between training runs; the
+    per-seed rates show it)."""
+    from univtac_data.envs.evaluate import wilson_interval
+
+    out = []
+    for key in dict.fromkeys((r["task"], r["variant"]) for r in rows):
+        group = [r for r in rows if (r["task"], r["variant"]) == key]
+        n, k = sum(r["rollouts"] for r in group), sum(r["successes"] for r in group)
+        out.append({"task": key[0], "variant": key[1], "training_seeds": [r["seed"] for r in group],
+                    "rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
+                    "per_seed_success_rate": [r["success_rate"] for r in group],
+                    "unsafe_rate": sum(r["unsafe_rate"] * r["rollouts"] for r in group) / n,
+                    "train_s": sum(r["train_s"] for r in group), "eval_s": sum(r["eval_s"] for r in group)})
+    return out
+
+
+def difference_interval(k1: int, n1: int, k2: int, n2: int) -> tuple[float, float, float]:
+    """p1 - p2 and its 95 % interval by Newcombe's hybrid score method (his method 10: from the two Wilson
+    intervals), which keeps its coverage near 0 and 1, where the policies' rates sit."""
+    from univtac_data.envs.evaluate import wilson_interval
+
+    p1, p2 = k1 / n1, k2 / n2
+    (l1, u1), (l2, u2) = wilson_interval(k1, n1), wilson_interval(k2, n2)
+    d = p1 - p2
+    return d, d - ((p1 - l1) ** 2 + (u2 - p2) ** 2) ** 0.5, d + ((u1 - p1) ** 2 + (p2 - l2) ** 2) ** 0.5
+
+
+def touch_effects(pooled: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per task, each tactile variant's success minus vision's (points) with its 95 % interval."""
+    out = []
+    for base in (r for r in pooled if r["variant"] == "vision"):
+        for row in (r for r in pooled if r["task"] == base["task"] and r["variant"] != "vision"):
+            d, lo, hi = difference_interval(row["successes"], row["rollouts"], base["successes"], base["rollouts"])
+            out.append({"task": base["task"], "variant": row["variant"], "points": 100 * d,
+                        "interval95_points": [100 * lo, 100 * hi], "goal_points": 15.0,
+                        "goal_met": 100 * d >= 15.0})
+    return out
 
 
 def failure_reasons(rollouts: list[dict[str, Any]]) -> dict[str, int]:
@@ -393,29 +438,35 @@ def failure_reasons(rollouts: list[dict[str, Any]]) -> dict[str, int]:
 
 
 def chart(rows: list[dict[str, Any]], path: Path) -> None:
+    """Success per task and variant, the training seeds' rollouts pooled (bar, 95 % Wilson interval), each
+    seed's own rate as a dot."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tasks = sorted({r["task"] for r in rows})
+    pooled = pooled_rows(rows)
+    tasks = sorted({r["task"] for r in pooled})
     colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
     fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(tasks), 3.6))
     width = 0.26
     for v, variant in enumerate(VARIANTS):
         for t, task in enumerate(tasks):
-            row = next((r for r in rows if r["task"] == task and r["variant"] == variant), None)
+            row = next((r for r in pooled if r["task"] == task and r["variant"] == variant), None)
             if row is None:
                 continue
             x = t + (v - 1) * width
             p, (lo, hi) = row["success_rate"], row["wilson95"]
             ax.bar(x, 100 * p, width * 0.9, color=colours[variant], label=variant if t == 0 else None)
             ax.errorbar(x, 100 * p, yerr=[[100 * (p - lo)], [100 * (hi - p)]], color="black", capsize=3, lw=1)
+            if len(row["per_seed_success_rate"]) > 1:
+                seeds = row["per_seed_success_rate"]
+                ax.plot([x] * len(seeds), [100 * q for q in seeds], "o", ms=3, mfc="white", mec="black", zorder=3)
             ax.text(x, 100 * hi + 1.5, f"{row['successes']}/{row['rollouts']}", ha="center", fontsize=7)
     ax.set_xticks(range(len(tasks)), tasks)
     ax.set_ylabel("success, % (95 % Wilson interval)")
     ax.set_ylim(0, 105)
-    ax.set_title("ACT-style policy, 50 demonstrations: vision vs touch")
+    ax.set_title("ACT-style policy, 50 demonstrations: vision vs touch (dots: training seeds)", fontsize=9)
     ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -434,6 +485,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as err:
             raise SystemExit(f"--setup {args.setup}: not a readable JSON file ({err})") from None
     report["rows"] = rows
+    report["pooled"] = pooled_rows(rows)
+    report["touch_effects"] = touch_effects(report["pooled"])
     notes = args.ablation_note or []
     for k, runs in enumerate(args.ablation_runs or []):
         report.setdefault("ablations", []).append(
@@ -442,11 +495,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     if args.chart:
         chart(rows, Path(args.chart))
-    for r in rows:
+    for r in report["pooled"]:
         lo, hi = r["wilson95"]
+        seeds = ", ".join(f"{100 * q:.0f}" for q in r["per_seed_success_rate"])
         print(f"| {r['task']} | {r['variant']} | {r['successes']}/{r['rollouts']} = {100 * r['success_rate']:.0f} % "
-              f"({100 * lo:.0f}-{100 * hi:.0f}) | {100 * r['unsafe_rate']:.0f} % | {r['train_s'] / 60:.1f} min "
+              f"({100 * lo:.0f}-{100 * hi:.0f}) | {seeds} | {100 * r['unsafe_rate']:.0f} % | {r['train_s'] / 60:.1f} min "
               f"| {r['eval_s'] / 60:.1f} min |")
+    for e in report["touch_effects"]:
+        lo, hi = e["interval95_points"]
+        print(f"{e['task']}: {e['variant']} - vision = {e['points']:+.1f} points ({lo:+.1f} to {hi:+.1f})")
     return 0
 
 
@@ -464,6 +521,8 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--cameras", default="head,wrist", help="comma-separated cameras, or 'none'")
     tr.add_argument("--camera-size", default="128x72", help="camera WxH recorded and evaluated at (default 128x72)")
     tr.add_argument("--camera-input", default="64x36", help="camera WxH the policy's CNN reads, area-resized (default 64x36)")
+    tr.add_argument("--opening", choices=OPENING_TARGETS, default="relative",
+                    help="the opening the policy predicts: relative to the measured one (default) or absolute")
     tr.add_argument("--d-model", type=int, default=128)
     tr.add_argument("--steps", type=int, default=3000)
     tr.add_argument("--batch-size", type=int, default=32)

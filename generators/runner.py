@@ -55,11 +55,18 @@ class RunSummary:
 # budget), and it costs about an eighth of their rate, which the elastic rows can spare above their target
 # (25 frames/s/core); geometric frames are small at level 1 already, and their rate has little to spare.
 AUTO_COMPRESSION_LEVEL = {"geometric": 1, "elastic": 3}
+# ... except the GF225's geometric frames (480 x 480, 2.25 times the Mini's pixels), which the half-space's
+# sink-in took past the 265 KiB budget at level 1 (277.5 KiB a frame, all 14 shapes): level 2 makes them
+# 262.8 KiB for 0.6 ms more writing a frame (5.1 -> 5.6 ms); level 3 would be 237 KiB for 6 ms more.
+AUTO_COMPRESSION_LEVEL_BY_SENSOR = {("gf225", "geometric"): 2}
 
 
 def compression_level_for(spec: IndenterEpisodeSpec, level: int | None = None) -> int:
-    """The Blosc level ``spec``'s episode is written at: ``level``, or by its contact model when None."""
-    return AUTO_COMPRESSION_LEVEL[spec.contact_method] if level is None else level
+    """The Blosc level ``spec``'s episode is written at: ``level``, or by its sensor and contact model when None."""
+    if level is not None:
+        return level
+    return AUTO_COMPRESSION_LEVEL_BY_SENSOR.get((spec.sensor, spec.contact_method),
+                                                AUTO_COMPRESSION_LEVEL[spec.contact_method])
 
 
 def produce_indenter_episode(spec: IndenterEpisodeSpec, url: str, storage: str,
@@ -240,7 +247,7 @@ def run_corpus(url: str, specs: list[IndenterEpisodeSpec], *, storage: str = "hd
                executor: str = "local", ray_address: str | None = None, progress: bool = True,
                compression_level: int | None = None) -> RunSummary:
     """Make every episode of ``specs`` that the dataset at ``url`` lacks. ``compression_level``: Blosc level
-    1 to 9 of the episode files (None: ``AUTO_COMPRESSION_LEVEL`` by contact model)."""
+    1 to 9 of the episode files (None: ``compression_level_for``, by sensor and contact model)."""
     if compression_level is not None and compression_level not in ZSTD_LEVELS:
         raise DatasetError(f"--compression-level must be {ZSTD_LEVELS.start} to {ZSTD_LEVELS.stop - 1} "
                            f"(got {compression_level})")

@@ -22,7 +22,7 @@ from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, corpus
 from univtac_data.generators.indenters.scene import PAD_SIDE, indenter_geom_names, indenter_scene_xml
 from univtac_data.generators.indenters.shapes import INDENTER_NAMES, INDENTERS, TIP_HEIGHT_M, indenter_mesh
 from univtac_data.generators.scene.primitives import PRIMITIVE_NAMES, GraspParams, grasp, hold, squeeze_open_loop
-from univtac_data.generators.runner import run_corpus
+from univtac_data.generators.runner import compression_level_for, run_corpus
 from univtac_data.generators.scene.sim import GripperSim
 from univtac_data.storage.backend import META_ATTR
 from univtac_data.storage.errors import DatasetError
@@ -173,6 +173,17 @@ def test_bad_options_and_mismatched_resume_are_refused(tmp_path):
     assert chosen.returncode == 0, chosen.stderr
     (written,) = (tmp_path / "c" / "episodes").glob("*.h5")
     assert stored_blosc_levels(written) == {6}
+
+
+def test_the_automatic_compression_level_follows_sensor_and_contact_model():
+    """Level 1 for geometric contact, 3 for elastic, 2 for the GF225's geometric frames (which level 1 leaves
+    over the size budget); a chosen level always wins."""
+    def level(sensor: str, method: str, chosen: int | None = None) -> int:
+        return compression_level_for(IndenterEpisodeSpec(sensor, "sphere", 0, contact_method=method), chosen)
+
+    assert [level(s, "geometric") for s in ("gelsight_mini", "xense_ws", "gf225")] == [1, 1, 2]
+    assert [level(s, "elastic") for s in ("gelsight_mini", "xense_ws", "gf225")] == [3, 3, 3]
+    assert level("gf225", "geometric", 6) == level("gelsight_mini", "elastic", 1) + 5 == 6
 
 
 def test_generated_episodes_pass_every_validator_rule(tmp_path):

@@ -27,8 +27,8 @@ if str(EXAMPLES) not in sys.path:
     sys.path.insert(0, str(EXAMPLES))
 
 from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, PolicyConfig, TemporalEnsembler,  # noqa: E402
-                        load_checkpoint, masked_l1, save_checkpoint)
-from train_policy import load_demos, train  # noqa: E402
+                        absolute_chunk, chunk_targets, load_checkpoint, masked_l1, save_checkpoint)
+from train_policy import difference_interval, load_demos, pooled_rows, touch_effects, train  # noqa: E402
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 TASK = "pull_out_key"
@@ -189,6 +189,67 @@ def test_the_pretrained_encoder_stays_frozen(demos, tmp_path):
              "feat_right": cache.tensors["feat_right"][:4]}
     with torch.no_grad():
         assert torch.allclose(net(obs), net(feats), atol=1e-5)
+
+
+def test_a_relative_opening_is_learnt_as_the_squeeze_and_rolled_out_as_a_width(demos, tmp_path):
+    """``opening="relative"``: the network learns the commanded width minus the measured one (on Pull-out Key
+    the held grasp is a squeeze of 1.4 mm, whatever width the bow stops the fingers at), and the rollout adds
+    the opening measured when the chunk is predicted, so the environment still gets absolute widths."""
+    t = demos.tensors
+    relative = tiny_config(opening="relative")
+    targets = chunk_targets(t["agent_pos"], t["action"], relative)
+    assert torch.equal(targets[..., :7], t["action"][..., :7])
+    assert torch.allclose(targets[..., 7], t["action"][..., 7] - t["agent_pos"][:, None, 7])
+    assert chunk_targets(t["agent_pos"], t["action"], tiny_config()) is t["action"]
+    squeeze_mm = 1e3 * np.median(targets[..., 7][~t["action_is_pad"]].numpy())
+    assert -1.5 < squeeze_mm < -1.3  # the expert's hold: 1.4 mm inside the stalled fingers
+    chunk = np.random.default_rng(0).normal(size=(4, 8)).astype(np.float32)
+    agent = t["agent_pos"][5].numpy()
+    assert np.allclose(absolute_chunk(chunk, agent, relative)[:, 7], chunk[:, 7] + agent[7])
+    assert np.array_equal(absolute_chunk(chunk, agent, relative)[:, :7], chunk[:, :7])
+
+    torch.set_num_threads(1)
+    net, norm, _ = train(demos, relative, steps=3, batch_size=8, lr=1e-3, seed=0, shift_px=0, log=lambda _: None)
+    assert abs(norm.action_mean[7].item()) < 5e-3  # fitted on squeezes (mm), not on widths
+    save_checkpoint(tmp_path / "policy.pt", net, norm)
+    again, norm2, _ = load_checkpoint(tmp_path / "policy.pt")
+    assert again.config.opening == "relative"
+    env = TaskEnv(TASK, cameras=False, rate_hz=10.0)
+    obs, _ = env.reset(seed=1_000_000)
+    env.close()
+    policy = ChunkPolicy(again, norm2)
+    with torch.no_grad():
+        raw = (again(policy.observation(obs))[0] * norm2.action_std + norm2.action_mean).numpy()
+    got = policy.predict_chunk(obs)
+    assert np.allclose(got[:, 7], raw[:, 7] + obs["agent_pos"][7]) and np.array_equal(got[:, :7], raw[:, :7])
+    # checkpoints written before the option existed are absolute
+    old = {k: v for k, v in tiny_config().to_dict().items() if k != "opening"}
+    assert PolicyConfig.from_dict(old).opening == "absolute"
+    with pytest.raises(ValueError, match="opening"):
+        tiny_config(opening="delta")
+
+
+def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
+    """Newcombe's (1998) worked example of his method 10: 56/70 against 48/80 is +0.2000 (0.0524 to 0.3338);
+    and the report pools each variant's training seeds before comparing it with vision."""
+    d, lo, hi = difference_interval(56, 70, 48, 80)
+    assert np.allclose((d, lo, hi), (0.2, 0.0524, 0.3338), atol=2e-4)  # z = 1.96 against his 1.959964
+    d, lo, hi = difference_interval(0, 50, 0, 50)
+    assert d == 0.0 and lo < 0.0 < hi
+
+    def row(variant: str, seed: int, k: int, n: int = 50) -> dict:
+        return {"task": "grasp_classify", "variant": variant, "seed": seed, "rollouts": n, "successes": k,
+                "success_rate": k / n, "unsafe_rate": 0.1, "train_s": 60.0, "eval_s": 30.0}
+
+    rows = [row("vision", 0, 10), row("vision", 1, 20), row("vision_tactile", 0, 30), row("vision_tactile", 1, 25)]
+    pooled = pooled_rows(rows)
+    assert [(r["variant"], r["successes"], r["rollouts"], r["training_seeds"]) for r in pooled] == [
+        ("vision", 30, 100, [0, 1]), ("vision_tactile", 55, 100, [0, 1])]
+    assert pooled[0]["per_seed_success_rate"] == [0.2, 0.4]
+    (effect,) = touch_effects(pooled)
+    assert effect["variant"] == "vision_tactile" and abs(effect["points"] - 25.0) < 1e-9 and effect["goal_met"]
+    lo, hi = effect["interval95_points"]
+    assert 0.0 < lo < 25.0 < hi
 
 
 def test_rate_hz_keeps_the_step_limit_as_a_time_limit(tmp_path):

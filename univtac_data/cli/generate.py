@@ -60,7 +60,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     ind.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local Ray)")
     ind.add_argument("--compression-level", type=int, default=None, metavar="1-9",
                      help="Blosc-Zstandard level of the episode files, 1 (fastest) to 9 (smallest); readers need "
-                          "not know it (default: 1 for geometric, 3 for elastic contact)")
+                          "not know it (default: 1 for geometric, 3 for elastic contact; 2 for the GF225's geometric)")
     task = kinds.add_parser(
         "task", help="expert demonstrations of a benchmark task (lift_can, ...), successful ones kept",
         description="Run a task's scripted expert on seed after seed (from --seed) and keep the successful, safe "

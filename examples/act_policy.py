@@ -1,8 +1,9 @@
 """A small ACT-style action-chunking policy in plain torch, and its runtime for ``univtac-data evaluate``.
 
 The network (``ChunkPolicyNet``) reads one observation and predicts the next ``chunk`` actions (x, y, z m;
-quaternion w, x, y, z, absolute; the opening m, absolute or, with ``PolicyConfig.opening = "relative"``, minus
-the measured opening; all normalised by the demonstrations' mean and std), as ACT
+quaternion w, x, y, z; opening m; absolute, or with ``PolicyConfig.pose``/``opening`` = "relative" taken
+from the pose and opening measured when the chunk is predicted (``chunk_targets``); all normalised by the
+demonstrations' mean and std), as ACT
 does without its CVAE: a transformer encoder over observation tokens, a transformer decoder with one learned
 query per action of the chunk. Tokens:
 
@@ -40,7 +41,7 @@ from torch import nn
 from torch.nn import functional as F
 
 VARIANTS = ("vision", "vision_tactile", "vision_encoder")
-OPENING_TARGETS = ("absolute", "relative")
+TARGET_FRAMES = ("absolute", "relative")
 PADS = ("left", "right")
 CHECKPOINT_ENV = "UNIVTAC_POLICY_CHECKPOINT"
 ENSEMBLE_K_ENV = "UNIVTAC_POLICY_ENSEMBLE_K"
@@ -64,16 +65,20 @@ class PolicyConfig:
     feedforward: int = 512
     dropout: float = 0.1
     ensemble_k: float = 0.01                   # temporal-ensembling weight exp(-k i), i = 0 the oldest
-    # what the opening column of a chunk is: "absolute" (the commanded width, m) or "relative" (the commanded
-    # width minus the opening measured when the chunk is predicted, m). Checkpoints without it are absolute.
+    # what a chunk's pose columns are: "absolute" (the end-effector target in the world) or "relative" (the
+    # target's displacement from the pose measured when the chunk is predicted, m, and its rotation from it,
+    # a world-frame quaternion q_target q_now^-1 with w >= 0); and its opening column: "absolute" (the
+    # commanded width, m) or "relative" (minus the opening measured then). Checkpoints without them are absolute.
+    pose: str = "absolute"
     opening: str = "absolute"
     encoder: dict[str, Any] | None = field(default=None)  # EncoderConfig of the frozen encoder (vision_encoder)
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {', '.join(VARIANTS)} (got {self.variant!r})")
-        if self.opening not in OPENING_TARGETS:
-            raise ValueError(f"opening must be one of {', '.join(OPENING_TARGETS)} (got {self.opening!r})")
+        for name in ("pose", "opening"):
+            if getattr(self, name) not in TARGET_FRAMES:
+                raise ValueError(f"{name} must be one of {', '.join(TARGET_FRAMES)} (got {getattr(self, name)!r})")
         if self.variant == "vision_encoder" and self.encoder is None:
             raise ValueError("the vision_encoder variant needs the encoder's config (load it with --encoder PATH)")
         if self.variant == "vision_encoder" and self.encoder is not None:
@@ -120,26 +125,50 @@ STD_FLOOR = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-2, 1e-3)
 
 
 OPENING = 7  # the opening's column in agent_pos and in an action
+QUAT = slice(3, 7)  # the quaternion's columns (w, x, y, z)
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of quaternions (..., 4) w, x, y, z (broadcasting)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
 def chunk_targets(agent_pos: torch.Tensor, actions: torch.Tensor, config: PolicyConfig) -> torch.Tensor:
-    """Recorded absolute actions (N, C, 8) -> what the network learns to predict. With ``opening="relative"``
-    the opening becomes the commanded width minus the measured one in ``agent_pos`` (N, 8): a held grasp is
-    then a squeeze of about -1.4 mm whatever the object's width, one small number, where the absolute target
-    puts the grasp's depth in the 1.4 mm difference of two widths of 7-50 mm that the policy reads and predicts."""
-    if config.opening == "absolute":
+    """Recorded absolute actions (N, C, 8) -> what the network learns to predict, given the state measured when
+    each chunk starts, ``agent_pos`` (N, 8). ``pose="relative"``: the target's displacement (m) and rotation
+    (q_target q_now^-1, sign chosen with w >= 0) from the measured pose, so holding still is zero, whatever
+    the scene's layout; an absolute target makes the network rebuild the pose it reads from its input, and
+    with 50 demonstrations it regresses towards their mean (Grasp Classify's first policies drifted 14 mm
+    off the cylinder they started above, then came down on its top). ``opening="relative"``: the commanded
+    width minus the measured one, so a held grasp is a squeeze of about -1.4 mm whatever the object's width."""
+    if config.pose == "absolute" and config.opening == "absolute":
         return actions
     targets = actions.clone()
-    targets[..., OPENING] -= agent_pos[:, None, OPENING]
+    now = agent_pos[:, None]
+    if config.pose == "relative":
+        targets[..., :3] -= now[..., :3]
+        conj = now[..., QUAT] * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=now.dtype)
+        rotation = quat_mul(actions[..., QUAT], conj)
+        targets[..., QUAT] = torch.where(rotation[..., :1] < 0, -rotation, rotation)
+    if config.opening == "relative":
+        targets[..., OPENING] -= now[..., OPENING]
     return targets
 
 
 def absolute_chunk(chunk: np.ndarray, agent_pos: np.ndarray, config: PolicyConfig) -> np.ndarray:
     """The inverse of ``chunk_targets`` at rollout: a predicted (C, 8) chunk -> absolute actions."""
-    if config.opening == "absolute":
+    if config.pose == "absolute" and config.opening == "absolute":
         return chunk
-    out = np.array(chunk, copy=True)
-    out[:, OPENING] += float(agent_pos[OPENING])
+    out = np.array(chunk, dtype=np.float64, copy=True)
+    now = np.asarray(agent_pos, np.float64)
+    if config.pose == "relative":
+        out[:, :3] += now[:3]
+        out[:, QUAT] = quat_mul(torch.from_numpy(out[:, QUAT]), torch.from_numpy(now[QUAT])[None]).numpy()
+    if config.opening == "relative":
+        out[:, OPENING] += now[OPENING]
     return out
 
 
@@ -388,6 +417,6 @@ def parameter_count(net: nn.Module, trainable: bool = True) -> int:
     return sum(p.numel() for p in net.parameters() if p.requires_grad or not trainable)
 
 
-__all__ = ["CHECKPOINT_ENV", "OPENING_TARGETS", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
-           "TemporalEnsembler", "absolute_chunk", "chunk_targets", "from_env", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
+__all__ = ["CHECKPOINT_ENV", "TARGET_FRAMES", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
+           "TemporalEnsembler", "absolute_chunk", "chunk_targets", "from_env", "quat_mul", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
            "save_checkpoint"]

@@ -42,7 +42,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, OPENING_TARGETS, PADS, VARIANTS,  # noqa: E402
+from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, TARGET_FRAMES, VARIANTS,  # noqa: E402
                         ChunkPolicyNet, Normalization, PolicyConfig, chunk_targets, masked_l1, parameter_count, resize_uint8, save_checkpoint)
 
 EXAMPLES = Path(__file__).resolve().parent
@@ -248,7 +248,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     encoder = encoder_config(args.encoder) if args.variant == "vision_encoder" else None
     tactile = {"tactile_hw": (int(encoder["height"]), int(encoder["width"]))} if encoder else {}
     config = PolicyConfig(variant=args.variant, cameras=cameras, camera_hw=(height, width), chunk=args.chunk,
-                          rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, opening=args.opening, **tactile)
+                          rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, pose=args.pose,
+                          opening=args.opening, **tactile)
     log_file = open(out / "train.log", "a")
 
     def log(message: str) -> None:
@@ -272,7 +273,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
         "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
         "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
-        "lr": args.lr, "seed": args.seed, "opening": config.opening, "camera_size": args.camera_size, "cameras": list(cameras),
+        "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening, "camera_size": args.camera_size, "cameras": list(cameras),
         "trainable_parameters": parameter_count(net), "encoder": args.encoder,
         "read_s": t_read, "train_s": t_train, "threads": args.threads,
         "loss_first_100": float(np.mean(losses[:100])), "loss_last_100": float(np.mean(losses[-100:])),
@@ -376,7 +377,8 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "loss_first_100": train_s["loss_first_100"], "loss_last_100": train_s["loss_last_100"],
             "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
             "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
-            "seed": train_s.get("seed", 0), "opening": train_s.get("opening", "absolute"),
+            "seed": train_s.get("seed", 0), "pose": train_s.get("pose", "absolute"),
+            "opening": train_s.get("opening", "absolute"),
         })
     order = {v: k for k, v in enumerate(VARIANTS)}
     return sorted(rows, key=lambda r: (r["task"], order[r["variant"]], r["seed"]))
@@ -521,7 +523,9 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--cameras", default="head,wrist", help="comma-separated cameras, or 'none'")
     tr.add_argument("--camera-size", default="128x72", help="camera WxH recorded and evaluated at (default 128x72)")
     tr.add_argument("--camera-input", default="64x36", help="camera WxH the policy's CNN reads, area-resized (default 64x36)")
-    tr.add_argument("--opening", choices=OPENING_TARGETS, default="relative",
+    tr.add_argument("--pose", choices=TARGET_FRAMES, default="relative",
+                    help="the pose the policy predicts: relative to the measured one (default) or absolute")
+    tr.add_argument("--opening", choices=TARGET_FRAMES, default="relative",
                     help="the opening the policy predicts: relative to the measured one (default) or absolute")
     tr.add_argument("--d-model", type=int, default=128)
     tr.add_argument("--steps", type=int, default=3000)

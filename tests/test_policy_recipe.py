@@ -27,7 +27,7 @@ if str(EXAMPLES) not in sys.path:
     sys.path.insert(0, str(EXAMPLES))
 
 from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, PolicyConfig, TemporalEnsembler,  # noqa: E402
-                        absolute_chunk, chunk_targets, load_checkpoint, masked_l1, save_checkpoint)
+                        absolute_chunk, chunk_targets, load_checkpoint, masked_l1, quat_mul, save_checkpoint)
 from train_policy import difference_interval, load_demos, pooled_rows, touch_effects, train  # noqa: E402
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -191,29 +191,41 @@ def test_the_pretrained_encoder_stays_frozen(demos, tmp_path):
         assert torch.allclose(net(obs), net(feats), atol=1e-5)
 
 
-def test_a_relative_opening_is_learnt_as_the_squeeze_and_rolled_out_as_a_width(demos, tmp_path):
-    """``opening="relative"``: the network learns the commanded width minus the measured one (on Pull-out Key
-    the held grasp is a squeeze of 1.4 mm, whatever width the bow stops the fingers at), and the rollout adds
-    the opening measured when the chunk is predicted, so the environment still gets absolute widths."""
+def test_relative_targets_are_learnt_from_the_measured_state_and_rolled_out_absolute(demos, tmp_path):
+    """``pose``/``opening`` = "relative": the network learns the target's displacement and rotation from the
+    measured pose (holding still is zero) and the commanded width minus the measured one (on Pull-out Key
+    the held grasp is a squeeze of 1.4 mm, whatever width the bow stops the fingers at); the rollout adds
+    the state measured when the chunk is predicted back, so the environment still gets absolute targets."""
+    i, j, k = torch.eye(4)[1], torch.eye(4)[2], torch.eye(4)[3]
+    assert torch.equal(quat_mul(i, j), k) and torch.equal(quat_mul(j, i), -k)
     t = demos.tensors
-    relative = tiny_config(opening="relative")
+    relative = tiny_config(pose="relative", opening="relative")
     targets = chunk_targets(t["agent_pos"], t["action"], relative)
-    assert torch.equal(targets[..., :7], t["action"][..., :7])
-    assert torch.allclose(targets[..., 7], t["action"][..., 7] - t["agent_pos"][:, None, 7])
-    assert chunk_targets(t["agent_pos"], t["action"], tiny_config()) is t["action"]
-    squeeze_mm = 1e3 * np.median(targets[..., 7][~t["action_is_pad"]].numpy())
+    agent, actions = t["agent_pos"], t["action"]
+    assert torch.allclose(targets[..., :3], actions[..., :3] - agent[:, None, :3])
+    assert torch.allclose(targets[..., 7], actions[..., 7] - agent[:, None, 7])
+    assert (targets[..., 3] >= 0).all()
+    # a target equal to the measured pose is the identity: holding still is zero
+    still = chunk_targets(agent, agent[:, None].repeat(1, 2, 1), relative)
+    assert torch.allclose(still[..., :3], torch.zeros(1)) and torch.allclose(still[..., 7], torch.zeros(1))
+    assert torch.allclose(still[..., 3:7].abs(), torch.tensor([1.0, 0.0, 0.0, 0.0]), atol=1e-6)
+    assert chunk_targets(agent, actions, tiny_config()) is actions
+    only_opening = chunk_targets(agent, actions, tiny_config(opening="relative"))
+    assert torch.equal(only_opening[..., :7], actions[..., :7])
+    squeeze_mm = 1e3 * np.median(only_opening[..., 7][~t["action_is_pad"]].numpy())
     assert -1.5 < squeeze_mm < -1.3  # the expert's hold: 1.4 mm inside the stalled fingers
-    chunk = np.random.default_rng(0).normal(size=(4, 8)).astype(np.float32)
-    agent = t["agent_pos"][5].numpy()
-    assert np.allclose(absolute_chunk(chunk, agent, relative)[:, 7], chunk[:, 7] + agent[7])
-    assert np.array_equal(absolute_chunk(chunk, agent, relative)[:, :7], chunk[:, :7])
+    for n in (0, len(agent) // 2, len(agent) - 1):  # absolute_chunk inverts chunk_targets
+        back = absolute_chunk(targets[n].numpy(), agent[n].numpy(), relative)
+        want = actions[n].numpy()
+        assert np.allclose(back[:, :3], want[:, :3], atol=1e-6) and np.allclose(back[:, 7], want[:, 7], atol=1e-6)
+        assert np.allclose(np.abs((back[:, 3:7] * want[:, 3:7]).sum(1)), 1.0, atol=1e-5)  # the same rotation
 
     torch.set_num_threads(1)
     net, norm, _ = train(demos, relative, steps=3, batch_size=8, lr=1e-3, seed=0, shift_px=0, log=lambda _: None)
     assert abs(norm.action_mean[7].item()) < 5e-3  # fitted on squeezes (mm), not on widths
     save_checkpoint(tmp_path / "policy.pt", net, norm)
     again, norm2, _ = load_checkpoint(tmp_path / "policy.pt")
-    assert again.config.opening == "relative"
+    assert (again.config.pose, again.config.opening) == ("relative", "relative")
     env = TaskEnv(TASK, cameras=False, rate_hz=10.0)
     obs, _ = env.reset(seed=1_000_000)
     env.close()
@@ -221,12 +233,15 @@ def test_a_relative_opening_is_learnt_as_the_squeeze_and_rolled_out_as_a_width(d
     with torch.no_grad():
         raw = (again(policy.observation(obs))[0] * norm2.action_std + norm2.action_mean).numpy()
     got = policy.predict_chunk(obs)
-    assert np.allclose(got[:, 7], raw[:, 7] + obs["agent_pos"][7]) and np.array_equal(got[:, :7], raw[:, :7])
-    # checkpoints written before the option existed are absolute
-    old = {k: v for k, v in tiny_config().to_dict().items() if k != "opening"}
-    assert PolicyConfig.from_dict(old).opening == "absolute"
-    with pytest.raises(ValueError, match="opening"):
-        tiny_config(opening="delta")
+    assert np.allclose(got, absolute_chunk(raw, obs["agent_pos"], again.config))
+    assert np.allclose(got[:, :3], raw[:, :3] + obs["agent_pos"][:3], atol=1e-6)
+    assert np.allclose(got[:, 7], raw[:, 7] + obs["agent_pos"][7], atol=1e-6)
+    # checkpoints written before the options existed are absolute
+    old = {k: v for k, v in tiny_config().to_dict().items() if k not in ("pose", "opening")}
+    assert (PolicyConfig.from_dict(old).pose, PolicyConfig.from_dict(old).opening) == ("absolute", "absolute")
+    for bad in ({"opening": "delta"}, {"pose": "local"}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            tiny_config(**bad)
 
 
 def test_the_report_pools_training_seeds_and_gives_touch_an_interval():

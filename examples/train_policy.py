@@ -43,7 +43,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, TARGET_FRAMES, VARIANTS,  # noqa: E402
-                        ChunkPolicyNet, Normalization, PolicyConfig, chunk_targets, masked_l1, parameter_count, resize_uint8, save_checkpoint)
+                        ChunkPolicyNet, Normalization, PolicyConfig, chunk_targets, masked_l1, parameter_count,
+                        resize_uint8, save_checkpoint)
 
 EXAMPLES = Path(__file__).resolve().parent
 
@@ -273,7 +274,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
         "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
         "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
-        "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening, "camera_size": args.camera_size, "cameras": list(cameras),
+        "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening,
+        "camera_size": args.camera_size, "cameras": list(cameras),
         "trainable_parameters": parameter_count(net), "encoder": args.encoder,
         "read_s": t_read, "train_s": t_train, "threads": args.threads,
         "loss_first_100": float(np.mean(losses[:100])), "loss_last_100": float(np.mean(losses[-100:])),
@@ -384,17 +386,23 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: (r["task"], order[r["variant"]], r["seed"]))
 
 
+def recipe(row: dict[str, Any]) -> tuple[str, str]:
+    """The targets a run was trained on (pose, opening); runs from before the option are absolute."""
+    return row.get("pose", "absolute"), row.get("opening", "absolute")
+
+
 def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per task and variant: the rollouts of every training seed together, with each seed's own rate
-    beside them (the binomial interval of the pool does not hold the spread between training runs; the
-    per-seed rates show it)."""
+    """One row per task, variant and recipe: the rollouts of every training seed together, with each seed's
+    own rate beside them (the binomial interval of the pool does not hold the spread between training runs;
+    the per-seed rates show it). Runs trained on other targets are never pooled together."""
     from univtac_data.envs.evaluate import wilson_interval
 
     out = []
-    for key in dict.fromkeys((r["task"], r["variant"]) for r in rows):
-        group = [r for r in rows if (r["task"], r["variant"]) == key]
+    for key in dict.fromkeys((r["task"], r["variant"], recipe(r)) for r in rows):
+        group = [r for r in rows if (r["task"], r["variant"], recipe(r)) == key]
         n, k = sum(r["rollouts"] for r in group), sum(r["successes"] for r in group)
-        out.append({"task": key[0], "variant": key[1], "training_seeds": [r["seed"] for r in group],
+        out.append({"task": key[0], "variant": key[1], "pose": key[2][0], "opening": key[2][1],
+                    "training_seeds": [r["seed"] for r in group],
                     "rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
                     "per_seed_success_rate": [r["success_rate"] for r in group],
                     "unsafe_rate": sum(r["unsafe_rate"] * r["rollouts"] for r in group) / n,
@@ -414,10 +422,11 @@ def difference_interval(k1: int, n1: int, k2: int, n2: int) -> tuple[float, floa
 
 
 def touch_effects(pooled: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per task, each tactile variant's success minus vision's (points) with its 95 % interval."""
+    """Per task and recipe, each tactile variant's success minus vision's (points) with its 95 % interval."""
     out = []
     for base in (r for r in pooled if r["variant"] == "vision"):
-        for row in (r for r in pooled if r["task"] == base["task"] and r["variant"] != "vision"):
+        for row in (r for r in pooled if r["task"] == base["task"] and r["variant"] != "vision"
+                    and recipe(r) == recipe(base)):
             d, lo, hi = difference_interval(row["successes"], row["rollouts"], base["successes"], base["rollouts"])
             out.append({"task": base["task"], "variant": row["variant"], "points": 100 * d,
                         "interval95_points": [100 * lo, 100 * hi], "goal_points": 15.0,

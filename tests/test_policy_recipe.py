@@ -265,6 +265,12 @@ def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     assert effect["variant"] == "vision_tactile" and abs(effect["points"] - 25.0) < 1e-9 and effect["goal_met"]
     lo, hi = effect["interval95_points"]
     assert 0.0 < lo < 25.0 < hi
+    # runs trained on other targets are pooled apart and compared only with vision of their own recipe
+    relative = [{**row("vision_tactile", 3, 50), "pose": "relative", "opening": "relative"}]
+    pooled = pooled_rows(rows + relative)
+    assert [(r["variant"], r["pose"], r["successes"]) for r in pooled] == [
+        ("vision", "absolute", 30), ("vision_tactile", "absolute", 55), ("vision_tactile", "relative", 50)]
+    assert len(touch_effects(pooled)) == 1
 
 
 def test_rate_hz_keeps_the_step_limit_as_a_time_limit(tmp_path):

@@ -448,15 +448,14 @@ def failure_reasons(rollouts: list[dict[str, Any]]) -> dict[str, int]:
     return dict(sorted(counts.items()))
 
 
-def chart(rows: list[dict[str, Any]], path: Path) -> None:
-    """Success per task and variant, the training seeds' rollouts pooled (bar, 95 % Wilson interval), each
-    seed's own rate as a dot."""
+def chart(pooled: list[dict[str, Any]], path: Path) -> None:
+    """Success per task and variant from ``pooled_rows``: the training seeds' rollouts pooled (bar, 95 % Wilson
+    interval), each seed's own rate as a dot."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    pooled = pooled_rows(rows)
     tasks = sorted({r["task"] for r in pooled})
     colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
     fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(tasks), 3.6))
@@ -505,7 +504,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     if args.chart:
-        chart(rows, Path(args.chart))
+        chart(report["pooled"], Path(args.chart))
     for r in report["pooled"]:
         lo, hi = r["wilson95"]
         seeds = ", ".join(f"{100 * q:.0f}" for q in r["per_seed_success_rate"])

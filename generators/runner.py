@@ -56,8 +56,8 @@ class RunSummary:
 # (25 frames/s/core); geometric frames are small at level 1 already, and their rate has little to spare.
 AUTO_COMPRESSION_LEVEL = {"geometric": 1, "elastic": 3}
 # ... except the GF225's geometric frames (480 x 480, 2.25 times the Mini's pixels), which the half-space's
-# sink-in took past the 265 KiB budget at level 1 (277.5 KiB a frame, all 14 shapes): level 2 makes them
-# 262.8 KiB for 0.6 ms more writing a frame (5.1 -> 5.6 ms); level 3 would be 237 KiB for 6 ms more.
+# sink-in took past the 265 KiB budget at level 1 (277.5 KiB a frame over the 14 shapes,
+# benchmarks/results/generate_throughput_fidelity.json); level 2 makes them 262.8 KiB (generate_throughput.json).
 AUTO_COMPRESSION_LEVEL_BY_SENSOR = {("gf225", "geometric"): 2}
 
 

@@ -14,12 +14,18 @@ query per action of the chunk. Tokens:
 * tactile, by variant: ``vision`` none; ``vision_tactile`` each pad's marked image (area-resized to
   48 x 64 px) through a small CNN trained end to end, one token per pad; ``vision_encoder`` the same images
   through the pretrained ``TactileEncoder`` (``examples/tactile_encoder.py``), frozen, its features per pad
-  (128, or 256 with the recipe's average+maximum pooling) projected to one token.
+  (128, or 256 with the recipe's average+maximum pooling) projected to one token;
+* with ``PolicyConfig.history`` H > 0, the past: one token of the last H steps' agent_pos relative to now
+  (every variant), and for the tactile variants one more of both pads' ``TOUCH_SIGNALS`` (deepest
+  indentation mm, normal and shear force N) over those steps and now. The rollout then needs
+  ``univtac-data evaluate --tactile-extras``: the signals are the environment's, as recorded in the episodes.
 
 Training minimises the L1 distance to the demonstrated chunk over the actions that exist: ``action_is_pad``
 (past the episode's end) is masked out of the loss (``masked_l1``). At rollout the policy predicts a chunk
 every step and averages every prediction made for the current step with weights exp(-k i), i = 0 the
-oldest (ACT's temporal ensembling, ``TemporalEnsembler``).
+oldest (ACT's temporal ensembling, ``TemporalEnsembler``). ACT's k = 0.01 weighs the 20 predictions almost
+alike, so a contact the pads feel turns the action round only after about ten steps; a negative k weighs
+the newest most (``train_policy.py train --ensemble-k``, stored as ``config.ensemble_k``).
 
 ``univtac-data evaluate TASK --policy act_policy:from_env`` (with ``examples/`` on ``PYTHONPATH``) loads
 the checkpoint named by the environment variable ``UNIVTAC_POLICY_CHECKPOINT``; evaluate at the rate the
@@ -71,6 +77,11 @@ class PolicyConfig:
     # commanded width, m) or "relative" (minus the opening measured then). Checkpoints without them are absolute.
     pose: str = "absolute"
     opening: str = "absolute"
+    # policy steps of the past the network reads besides the present (0: the present only): every variant
+    # one token of its past agent_pos (relative to now), the tactile variants one more of the pads' touch
+    # signals (``TOUCH_SIGNALS``) over those steps and now. A reactive policy cannot tell "turning towards the
+    # stop" from "turned back from it"; the key's stop shows on the pads for 3 steps of 25 Hz.
+    history: int = 0
     encoder: dict[str, Any] | None = field(default=None)  # EncoderConfig of the frozen encoder (vision_encoder)
 
     def __post_init__(self) -> None:
@@ -79,6 +90,8 @@ class PolicyConfig:
         for name in ("pose", "opening"):
             if getattr(self, name) not in TARGET_FRAMES:
                 raise ValueError(f"{name} must be one of {', '.join(TARGET_FRAMES)} (got {getattr(self, name)!r})")
+        if self.history < 0:
+            raise ValueError(f"history must be >= 0 policy steps (got {self.history})")
         if self.variant == "vision_encoder" and self.encoder is None:
             raise ValueError("the vision_encoder variant needs the encoder's config (load it with --encoder PATH)")
         if self.variant == "vision_encoder" and self.encoder is not None:
@@ -122,6 +135,23 @@ def hwc_to_chw(array: np.ndarray) -> torch.Tensor:
 # Key's opening (std 1.5 mm) and x, y (2.7-2.9 mm) by 10 mm: a normalised L1 of 0.06 was then 0.6 mm of
 # opening, and the opening the policy reads in agent_pos moved 0.05 between free and touching.
 STD_FLOOR = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2, 1e-2, 1e-3)
+
+
+# What a pad's touch signals are, per step (``touch_signals``), and the scale each is divided by for the
+# network: the deepest indentation (mm; the key's expert grasps to 0.5 mm and feels its stop as a rise over
+# 0.12 mm), the normal force and the two shear components in the pad frame (N).
+TOUCH_SIGNALS = ("max_depth_mm", "normal_force_n", "shear_x_n", "shear_y_n")
+TOUCH_SCALE = (0.5, 5.0, 1.0, 1.0)
+
+
+def touch_signals(obs: dict[str, Any]) -> np.ndarray:
+    """(2, 4) float32 ``TOUCH_SIGNALS`` of both pads (left, right) from an environment observation made with
+    ``tactile_extras`` (``univtac-data evaluate --tactile-extras``)."""
+    extras = obs.get("tactile")
+    if extras is None:
+        raise KeyError("the policy reads the pads' touch signals: evaluate with --tactile-extras")
+    return np.array([[float(np.max(extras[f"{pad}_depth_mm"])), *np.asarray(extras[f"{pad}_force_n"], np.float64)]
+                     for pad in PADS], np.float32)
 
 
 OPENING = 7  # the opening's column in agent_pos and in an action
@@ -261,7 +291,16 @@ class ChunkPolicyNet(nn.Module):
             feat = self.encoder.config.feature_dim
             self.encoder_proj = nn.Sequential(nn.LayerNorm(feat), nn.Linear(feat, d))
         n_tactile = len(PADS) if config.uses_tactile else 0
-        self.type_embedding = nn.Parameter(torch.randn(1 + n_tactile, d) * 0.02)  # agent, then each pad
+        self.past_agent: nn.Module | None = None
+        self.touch: nn.Module | None = None
+        if config.history:
+            self.past_agent = nn.Sequential(nn.Linear(config.history * 8, d), nn.ReLU(), nn.Linear(d, d))
+            if config.uses_tactile:
+                width = (config.history + 1) * len(PADS) * len(TOUCH_SIGNALS)
+                self.touch = nn.Sequential(nn.Linear(width, d), nn.ReLU(), nn.Linear(d, d))
+        n_history = (self.past_agent is not None) + (self.touch is not None)
+        # agent, each pad, then the past agent_pos and the touch signals
+        self.type_embedding = nn.Parameter(torch.randn(1 + n_tactile + n_history, d) * 0.02)
         layer = dict(d_model=d, nhead=config.heads, dim_feedforward=config.feedforward, dropout=config.dropout,
                      batch_first=True, norm_first=True)
         self.transformer_encoder = nn.TransformerEncoder(nn.TransformerEncoderLayer(**layer), config.encoder_layers,
@@ -286,7 +325,9 @@ class ChunkPolicyNet(nn.Module):
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         """``obs``: ``agent_pos`` (B, 8) normalised; each camera (B, 3, h, w) in [0, 1]; for the tactile
         variants ``tactile_left``/``tactile_right`` (B, 3, 48, 64) in [0, 1], or for ``vision_encoder``
-        precomputed ``feat_left``/``feat_right`` (B, F) instead of the images."""
+        precomputed ``feat_left``/``feat_right`` (B, F) instead of the images; with ``history`` H > 0 also
+        ``past_agent`` (B, H, 8) (``past_agent_input``) and for the tactile variants ``touch``
+        (B, H + 1, 2, 4) (``touch_input``)."""
         tokens = [(self.agent(obs["agent_pos"]) + self.type_embedding[0])[:, None]]
         for k, pad in enumerate(PADS if self.config.uses_tactile else ()):
             if self.tactile_cnn is not None:
@@ -298,11 +339,28 @@ class ChunkPolicyNet(nn.Module):
                     feat = self.encoder_features(obs[f"tactile_{pad}"])
                 token = self.encoder_proj(feat)
             tokens.append((token + self.type_embedding[1 + k])[:, None])
+        kind = 1 + (len(PADS) if self.config.uses_tactile else 0)
+        for module, key in ((self.past_agent, "past_agent"), (self.touch, "touch")):
+            if module is not None:
+                tokens.append((module(obs[key].flatten(1)) + self.type_embedding[kind])[:, None])
+                kind += 1
         for name, cnn in self.cameras.items():
             tokens.append(cnn(obs[name]))
         memory = self.transformer_encoder(torch.cat(tokens, 1))
         queries = self.queries.expand(memory.shape[0], -1, -1)
         return self.head(self.transformer_decoder(queries, memory))
+
+
+def past_agent_input(past: torch.Tensor, now: torch.Tensor, norm: Normalization) -> torch.Tensor:
+    """The network's ``past_agent``: past agent_pos (B, H, 8), oldest first, relative to the present one
+    (B, 8) and divided by agent_pos's std, so where the gripper was and how it moved, not where the scene is."""
+    return (past - now[:, None]) / norm.agent_std
+
+
+def touch_input(touch: torch.Tensor) -> torch.Tensor:
+    """The network's ``touch``: (B, H + 1, 2, 4) ``TOUCH_SIGNALS`` (oldest first, the present last), each
+    divided by its ``TOUCH_SCALE``."""
+    return touch / torch.tensor(TOUCH_SCALE, dtype=touch.dtype)
 
 
 def masked_l1(pred: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
@@ -344,9 +402,13 @@ class ChunkPolicy:
         self.config = net.config
         k = self.config.ensemble_k if ensemble_k is None else ensemble_k
         self.ensembler = TemporalEnsembler(self.config.chunk, k)
+        # the previous steps' agent_pos (8,) and touch signals (2, 4), oldest first; before the rollout's
+        # first step the first observation stands in for them (as the episode's first frame does in training)
+        self._past: deque[tuple[np.ndarray, np.ndarray | None]] = deque(maxlen=max(self.config.history, 1))
 
     def reset(self) -> None:
         self.ensembler.reset()
+        self._past.clear()
 
     def observation(self, obs: dict[str, Any]) -> dict[str, torch.Tensor]:
         """An environment observation -> the network's inputs (batch of one), prepared as in training."""
@@ -361,7 +423,20 @@ class ChunkPolicy:
         if cfg.uses_tactile:
             for pad in PADS:
                 out[f"tactile_{pad}"] = resize_uint8(hwc_to_chw(pixels[f"tactile_{pad}"]), cfg.tactile_hw).float() / 255.0
+        if cfg.history:
+            now = self._now(obs)
+            past = list(self._past)
+            past = [past[0] if past else now] * (cfg.history - len(past)) + past
+            agents = torch.from_numpy(np.stack([a for a, _ in past]))[None]
+            out["past_agent"] = past_agent_input(agents, agent[0][None], self.norm)
+            if cfg.uses_tactile:
+                touches = np.stack([t for _, t in [*past, now]])  # type: ignore[misc]
+                out["touch"] = touch_input(torch.from_numpy(touches)[None])
         return out
+
+    def _now(self, obs: dict[str, Any]) -> tuple[np.ndarray, np.ndarray | None]:
+        touch = touch_signals(obs) if self.config.uses_tactile else None
+        return np.asarray(obs["agent_pos"], np.float32), touch
 
     @torch.no_grad()
     def predict_chunk(self, obs: dict[str, Any]) -> np.ndarray:
@@ -372,6 +447,8 @@ class ChunkPolicy:
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:
         action = self.ensembler(self.predict_chunk(obs))
+        if self.config.history:
+            self._past.append(self._now(obs))
         quat = action[3:7]
         action[3:7] = quat / max(float(np.linalg.norm(quat)), 1e-9)
         return action.astype(np.float32)
@@ -418,5 +495,6 @@ def parameter_count(net: nn.Module, trainable: bool = True) -> int:
 
 
 __all__ = ["CHECKPOINT_ENV", "TARGET_FRAMES", "VARIANTS", "ChunkPolicy", "ChunkPolicyNet", "Normalization", "PolicyConfig", "STD_FLOOR",
-           "TemporalEnsembler", "absolute_chunk", "chunk_targets", "from_env", "quat_mul", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
+           "TOUCH_SCALE", "TOUCH_SIGNALS", "TemporalEnsembler", "absolute_chunk", "chunk_targets", "from_env",
+           "past_agent_input", "touch_input", "touch_signals", "quat_mul", "load_checkpoint", "load_policy", "masked_l1", "resize_uint8",
            "save_checkpoint"]

@@ -22,7 +22,8 @@ recorded action that many frames on. Every recorded frame still starts a trainin
         --chart docs/figures/policy_baselines.png
 
 ``evaluate`` runs ``univtac-data evaluate TASK --policy act_policy:from_env --rate-hz R --camera-size WxH``
-with ``examples/`` on ``PYTHONPATH`` and ``UNIVTAC_POLICY_CHECKPOINT`` naming the run's ``policy.pt``.
+(plus ``--tactile-extras`` for a tactile variant trained with ``--history``) with ``examples/`` on
+``PYTHONPATH`` and ``UNIVTAC_POLICY_CHECKPOINT`` naming the run's ``policy.pt``.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from act_policy import (CHECKPOINT_ENV, ENSEMBLE_K_ENV, PADS, TARGET_FRAMES, VARIANTS,  # noqa: E402
                         ChunkPolicyNet, Normalization, PolicyConfig, chunk_targets, masked_l1, parameter_count,
-                        resize_uint8, save_checkpoint)
+                        past_agent_input, resize_uint8, save_checkpoint, touch_input)
 
 EXAMPLES = Path(__file__).resolve().parent
 
@@ -53,14 +54,17 @@ EXAMPLES = Path(__file__).resolve().parent
 
 class DemoCache:
     """Every training sample in memory: images as uint8 at the policy's sizes, agent_pos (N, 8),
-    actions (N, C, 8) at the policy's rate and ``is_pad`` (N, C); for ``vision_encoder`` the frozen
-    encoder's features (N, F) per pad instead of the images (computed once)."""
+    actions (N, C, 8) at the policy's rate and ``is_pad`` (N, C), both pads' touch signals ``touch``
+    (N, 2, 4) (``act_policy.TOUCH_SIGNALS``); for ``vision_encoder`` the frozen encoder's features (N, F) per
+    pad instead of the images (computed once)."""
 
-    def __init__(self, tensors: dict[str, torch.Tensor], episodes: int, demo_rate_hz: float, subsample: int) -> None:
+    def __init__(self, tensors: dict[str, torch.Tensor], episodes: int, demo_rate_hz: float, subsample: int,
+                 stride: int = 1) -> None:
         self.tensors = tensors
         self.episodes = episodes
         self.demo_rate_hz = demo_rate_hz
         self.subsample = subsample
+        self.stride = stride  # every stride-th recorded frame is a sample
 
     def __len__(self) -> int:
         return len(self.tensors["agent_pos"])
@@ -86,6 +90,7 @@ def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 
 
     keys = tuple(k for k in TASK_OBS_KEYS if not k.startswith("scene/cameras/")
                  or k.split("/")[2] in config.cameras)
+    keys += tuple(f"tactile/{pad}/{name}" for pad in PADS for name in ("depth_um", "normal_force_n", "shear_force_n"))
     probe = PolicyChunkDataset(path, obs_keys=keys, names=task, chunk=1)
     rate = demo_rate(probe)
     subsample = round(rate / config.rate_hz)
@@ -103,6 +108,7 @@ def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 
         out[name] = []
     for pad in PADS:  # read for every variant, so one cache serves all three
         out[f"tactile_{pad}"] = []
+    out["touch"] = []
     start = time.perf_counter()
     for n, row in enumerate(rows):
         sample = data[int(row)]
@@ -117,10 +123,34 @@ def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 
         for pad in PADS:
             image = (obs[f"tactile/{pad}/marked_rgb"][-1:] * 255).round().to(torch.uint8)
             out[f"tactile_{pad}"].append(resize_uint8(image, config.tactile_hw)[0])
+        out["touch"].append(recorded_touch(obs))
         if n % 2000 == 0:
             log(f"  read {n}/{len(rows)} samples ({time.perf_counter() - start:.0f} s)")
     tensors = {k: torch.stack(v) for k, v in out.items()}
-    return DemoCache(tensors, len(episodes), rate, subsample)
+    return DemoCache(tensors, len(episodes), rate, subsample, stride)
+
+
+def recorded_touch(obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(2, 4) ``TOUCH_SIGNALS`` of both pads from a recorded frame (``PolicyChunkDataset`` observations), the
+    same numbers ``act_policy.touch_signals`` reads from the environment at rollout."""
+    rows = []
+    for pad in PADS:
+        depth_mm = float(obs[f"tactile/{pad}/depth_mm"][-1].max())  # the loader serves depth_um in mm
+        shear = obs[f"tactile/{pad}/shear_force_n"][-1].reshape(2)
+        rows.append([depth_mm, float(obs[f"tactile/{pad}/normal_force_n"][-1]), float(shear[0]), float(shear[1])])
+    return torch.tensor(rows, dtype=torch.float32)
+
+
+def history_rows(episode: torch.Tensor, history: int, step_rows: int) -> torch.Tensor:
+    """(N, history) rows of each sample's past, oldest first: ``step_rows`` rows make one policy step, and a
+    row before its episode's first is that first row (the rollout pads its first steps the same way)."""
+    n = len(episode)
+    rows = torch.arange(n)
+    starts = torch.ones(n, dtype=torch.bool)
+    starts[1:] = episode[1:] != episode[:-1]
+    first = torch.cummax(torch.where(starts, rows, torch.zeros_like(rows)), 0).values
+    back = step_rows * torch.arange(history, 0, -1)
+    return torch.maximum(rows[:, None] - back[None], first[:, None])
 
 
 def cached_demos(cache_path: str | None, data: str, task: str, config: PolicyConfig, stride: int,
@@ -132,9 +162,9 @@ def cached_demos(cache_path: str | None, data: str, task: str, config: PolicyCon
            "tactile_hw": list(config.tactile_hw), "stride": stride, "max_episodes": max_episodes}
     if cache_path and Path(cache_path).exists():
         saved = torch.load(cache_path, weights_only=False)
-        if saved["key"] == key:
+        if saved["key"] == key and "touch" in saved["tensors"]:  # caches from before touch signals: rebuilt
             log(f"  samples from the cache {cache_path}")
-            return DemoCache(saved["tensors"], saved["episodes"], saved["demo_rate_hz"], saved["subsample"])
+            return DemoCache(saved["tensors"], saved["episodes"], saved["demo_rate_hz"], saved["subsample"], stride)
     cache = load_demos(data, task, config, stride=stride, max_episodes=max_episodes, log=log)
     if cache_path:
         tmp = str(cache_path) + ".part"
@@ -182,6 +212,11 @@ def make_batch(cache: DemoCache, targets: torch.Tensor, index: torch.Tensor, nor
             obs[f"feat_{pad}"] = t[f"feat_{pad}"][index]
         else:
             obs[f"tactile_{pad}"] = t[f"tactile_{pad}"][index].float() / 255.0
+    if config.history:
+        past = t["history_rows"][index]
+        obs["past_agent"] = past_agent_input(t["agent_pos"][past], t["agent_pos"][index], norm)
+        if config.uses_tactile:
+            obs["touch"] = touch_input(t["touch"][torch.cat([past, index[:, None]], 1)])
     actions = (targets[index] - norm.action_mean) / norm.action_std
     return obs, actions, t["action_is_pad"][index]
 
@@ -200,6 +235,11 @@ def train(cache: DemoCache, config: PolicyConfig, *, steps: int, batch_size: int
     if config.variant == "vision_encoder" and "feat_left" not in cache.tensors:
         add_encoder_features(cache, net)
     t = cache.tensors
+    if config.history:
+        # consecutive rows are consecutive recorded frames only when every frame starts a sample
+        if cache.stride != 1:
+            raise ValueError(f"--history needs every recorded frame read (--stride 1, got {cache.stride})")
+        t["history_rows"] = history_rows(t["episode"], config.history, cache.subsample)
     targets = chunk_targets(t["agent_pos"], t["action"], config)
     norm = Normalization.fit(t["agent_pos"], targets, t["action_is_pad"])
     params = [p for p in net.parameters() if p.requires_grad]
@@ -240,17 +280,22 @@ def encoder_config(path: str) -> dict[str, Any]:
 
 def cmd_train(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     if args.variant == "vision_encoder" and not args.encoder:
         raise SystemExit("--variant vision_encoder needs --encoder PATH (a checkpoint of examples/pretrain_encoder.py)")
+    if args.history < 0:
+        raise SystemExit(f"--history must be >= 0 policy steps (got {args.history})")
+    if args.history and args.stride != 1:
+        raise SystemExit(f"--history {args.history} reads the past from every recorded frame: use --stride 1 "
+                         f"(got {args.stride}) or --history 0")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     width, height = (int(v) for v in args.camera_input.lower().split("x"))
     cameras = () if args.cameras == "none" else tuple(args.cameras.split(","))
     encoder = encoder_config(args.encoder) if args.variant == "vision_encoder" else None
     tactile = {"tactile_hw": (int(encoder["height"]), int(encoder["width"]))} if encoder else {}
     config = PolicyConfig(variant=args.variant, cameras=cameras, camera_hw=(height, width), chunk=args.chunk,
                           rate_hz=args.rate_hz, d_model=args.d_model, encoder=encoder, pose=args.pose,
-                          opening=args.opening, **tactile)
+                          opening=args.opening, history=args.history, ensemble_k=args.ensemble_k, **tactile)
     log_file = open(out / "train.log", "a")
 
     def log(message: str) -> None:
@@ -274,7 +319,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
         "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
         "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
-        "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening,
+        "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening, "history": config.history,
+        "ensemble_k": config.ensemble_k,
         "camera_size": args.camera_size, "cameras": list(cameras),
         "trainable_parameters": parameter_count(net), "encoder": args.encoder,
         "read_s": t_read, "train_s": t_train, "threads": args.threads,
@@ -290,11 +336,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------- evaluate
 
 def evaluate_command(task: str, episodes: int, rate_hz: float, camera_size: str | None, json_path: Path,
-                     seed: int = 0) -> list[str]:
+                     seed: int = 0, touch: bool = False) -> list[str]:
+    """``touch``: the policy reads the pads' touch signals (a tactile variant with history)."""
     cmd = ["univtac-data", "evaluate", task, "--policy", "act_policy:from_env", "--episodes", str(episodes),
            "--seed", str(seed), "--rate-hz", f"{rate_hz:g}", "--json", str(json_path)]
     cmd += ["--no-cameras"] if camera_size is None else ["--camera-size", camera_size]
-    return cmd
+    return cmd + (["--tactile-extras"] if touch else [])
 
 
 def policy_env(checkpoint: Path, threads: int = 1, ensemble_k: float | None = None) -> dict[str, str]:
@@ -314,7 +361,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     summary = json.loads((run / "train.json").read_text())
     camera_size = summary["camera_size"] if summary["cameras"] else None
     json_path = run / ("eval.json" if args.seed == 0 else f"eval-{args.seed}.json")
-    cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed)
+    touch = summary.get("history", 0) > 0 and summary["variant"] != "vision"
+    cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed, touch)
     print(" ".join(cmd), flush=True)
     start = time.perf_counter()
     subprocess.run(cmd, env=policy_env(run / "policy.pt", args.threads, args.ensemble_k), check=True)
@@ -348,6 +396,9 @@ def merged_evaluation(run: Path) -> dict[str, Any] | None:
     seeds = [r["seed"] for r in rollouts]
     if len(set(seeds)) != len(seeds):
         raise SystemExit(f"{run}: evaluations overlap in seeds; give each a disjoint --seed range")
+    ks = {ev.get("ensemble_k", PolicyConfig().ensemble_k) for ev in evals}
+    if len(ks) != 1:
+        raise SystemExit(f"{run}: evaluations with different --ensemble-k {sorted(ks)}; evaluate each k in its own run directory")
     from univtac_data.envs.evaluate import wilson_interval
 
     n, k = len(rollouts), sum(r["success"] for r in rollouts)
@@ -380,15 +431,18 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "failure_reasons": failure_reasons(ev["per_rollout"]), "eval_commands": ev["commands"],
             "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
             "seed": train_s.get("seed", 0), "pose": train_s.get("pose", "absolute"),
-            "opening": train_s.get("opening", "absolute"),
+            "opening": train_s.get("opening", "absolute"), "history": train_s.get("history", 0),
         })
     order = {v: k for k, v in enumerate(VARIANTS)}
     return sorted(rows, key=lambda r: (r["task"], order[r["variant"]], r["seed"]))
 
 
-def recipe(row: dict[str, Any]) -> tuple[str, str]:
-    """The targets a run was trained on (pose, opening); runs from before the option are absolute."""
-    return row.get("pose", "absolute"), row.get("opening", "absolute")
+def recipe(row: dict[str, Any]) -> tuple[str, str, int, float]:
+    """The targets a run was trained on (pose, opening), the policy steps of past it read, and the temporal
+    ensembling weight k it was evaluated with; runs from before those options are absolute, read the present
+    only and were evaluated with ACT's k = 0.01."""
+    return (row.get("pose", "absolute"), row.get("opening", "absolute"), int(row.get("history", 0)),
+            float(row.get("ensemble_k", 0.01)))
 
 
 def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -401,7 +455,7 @@ def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for key in dict.fromkeys((r["task"], r["variant"], recipe(r)) for r in rows):
         group = [r for r in rows if (r["task"], r["variant"], recipe(r)) == key]
         n, k = sum(r["rollouts"] for r in group), sum(r["successes"] for r in group)
-        out.append({"task": key[0], "variant": key[1], "pose": key[2][0], "opening": key[2][1],
+        out.append({"task": key[0], "variant": key[1], "pose": key[2][0], "opening": key[2][1], "history": key[2][2], "ensemble_k": key[2][3],
                     "training_seeds": [r["seed"] for r in group],
                     "rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
                     "per_seed_success_rate": [r["success_rate"] for r in group],
@@ -428,7 +482,9 @@ def touch_effects(pooled: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for row in (r for r in pooled if r["task"] == base["task"] and r["variant"] != "vision"
                     and recipe(r) == recipe(base)):
             d, lo, hi = difference_interval(row["successes"], row["rollouts"], base["successes"], base["rollouts"])
-            out.append({"task": base["task"], "variant": row["variant"], "points": 100 * d,
+            out.append({"task": base["task"], "variant": row["variant"], "pose": base["pose"],
+                        "opening": base["opening"], "history": base["history"], "ensemble_k": base["ensemble_k"],
+                        "points": 100 * d,
                         "interval95_points": [100 * lo, 100 * hi], "goal_points": 15.0,
                         "goal_met": 100 * d >= 15.0})
     return out
@@ -456,24 +512,29 @@ def chart(pooled: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    tasks = sorted({r["task"] for r in pooled})
+    # one group of bars per task and recipe (a task's recipes differ in history or ensembling k)
+    groups = sorted({(r["task"], recipe(r)) for r in pooled})
+    several = {task for task, _ in groups if sum(t == task for t, _ in groups) > 1}
+    labels = [task + (f"\nhistory {rec[2]}, k = {rec[3]:g}" if task in several else "") for task, rec in groups]
     colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
-    fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(tasks), 3.6))
+    fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(groups), 3.8))
     width = 0.26
-    for v, variant in enumerate(VARIANTS):
-        for t, task in enumerate(tasks):
-            row = next((r for r in pooled if r["task"] == task and r["variant"] == variant), None)
+    present = [v for v in VARIANTS if any(r["variant"] == v for r in pooled)]  # bars centred on their task
+    for v, variant in enumerate(present):
+        for t, (task, rec) in enumerate(groups):
+            row = next((r for r in pooled if r["task"] == task and r["variant"] == variant and recipe(r) == rec), None)
             if row is None:
                 continue
-            x = t + (v - 1) * width
+            x = t + (v - (len(present) - 1) / 2) * width
             p, (lo, hi) = row["success_rate"], row["wilson95"]
-            ax.bar(x, 100 * p, width * 0.9, color=colours[variant], label=variant if t == 0 else None)
+            ax.bar(x, 100 * p, width * 0.9, color=colours[variant],
+                   label=variant if variant not in ax.get_legend_handles_labels()[1] else None)
             ax.errorbar(x, 100 * p, yerr=[[100 * (p - lo)], [100 * (hi - p)]], color="black", capsize=3, lw=1)
             if len(row["per_seed_success_rate"]) > 1:
                 seeds = row["per_seed_success_rate"]
                 ax.plot([x] * len(seeds), [100 * q for q in seeds], "o", ms=3, mfc="white", mec="black", zorder=3)
             ax.text(x, 100 * hi + 1.5, f"{row['successes']}/{row['rollouts']}", ha="center", fontsize=7)
-    ax.set_xticks(range(len(tasks)), tasks)
+    ax.set_xticks(range(len(groups)), labels, fontsize=8)
     ax.set_ylabel("success, % (95 % Wilson interval)")
     ax.set_ylim(0, 105)
     ax.set_title("ACT-style policy, 50 demonstrations: vision vs touch (dots: training seeds)", fontsize=9)
@@ -499,8 +560,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     report["touch_effects"] = touch_effects(report["pooled"])
     notes = args.ablation_note or []
     for k, runs in enumerate(args.ablation_runs or []):
-        report.setdefault("ablations", []).append(
-            {"note": notes[k] if k < len(notes) else "", "rows": collect_rows([Path(r) for r in runs])})
+        ablation = collect_rows([Path(r) for r in runs])
+        pooled = pooled_rows(ablation)
+        report.setdefault("ablations", []).append({"note": notes[k] if k < len(notes) else "", "rows": ablation,
+                                                   "pooled": pooled, "touch_effects": touch_effects(pooled)})
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
     if args.chart:
@@ -508,12 +571,14 @@ def cmd_report(args: argparse.Namespace) -> int:
     for r in report["pooled"]:
         lo, hi = r["wilson95"]
         seeds = ", ".join(f"{100 * q:.0f}" for q in r["per_seed_success_rate"])
-        print(f"| {r['task']} | {r['variant']} | {r['successes']}/{r['rollouts']} = {100 * r['success_rate']:.0f} % "
+        print(f"| {r['task']} | {r['variant']} | history {r['history']}, k {r['ensemble_k']:g} "
+              f"| {r['successes']}/{r['rollouts']} = {100 * r['success_rate']:.0f} % "
               f"({100 * lo:.0f}-{100 * hi:.0f}) | {seeds} | {100 * r['unsafe_rate']:.0f} % | {r['train_s'] / 60:.1f} min "
               f"| {r['eval_s'] / 60:.1f} min |")
     for e in report["touch_effects"]:
         lo, hi = e["interval95_points"]
-        print(f"{e['task']}: {e['variant']} - vision = {e['points']:+.1f} points ({lo:+.1f} to {hi:+.1f})")
+        print(f"{e['task']} (history {e['history']}, k {e['ensemble_k']:g}): {e['variant']} - vision = "
+              f"{e['points']:+.1f} points ({lo:+.1f} to {hi:+.1f})")
     return 0
 
 
@@ -535,6 +600,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="the pose the policy predicts: relative to the measured one (default) or absolute")
     tr.add_argument("--opening", choices=TARGET_FRAMES, default="relative",
                     help="the opening the policy predicts: relative to the measured one (default) or absolute")
+    tr.add_argument("--history", type=int, default=25,
+                    help="policy steps of the past the network reads: agent_pos, and for the tactile variants the "
+                         "pads' touch signals (default 25: 1 s at 25 Hz; 0: the present only)")
+    tr.add_argument("--ensemble-k", type=float, default=PolicyConfig().ensemble_k,
+                    help="temporal-ensembling weight k the checkpoint rolls out with: exp(-k i), i = 0 the oldest "
+                         f"prediction (default {PolicyConfig().ensemble_k:g}, ACT's; negative weighs the newest most: "
+                         "-0.5 suits Pull-out Key, see docs/policies.md)")
     tr.add_argument("--d-model", type=int, default=128)
     tr.add_argument("--steps", type=int, default=3000)
     tr.add_argument("--batch-size", type=int, default=32)

@@ -27,8 +27,10 @@ if str(EXAMPLES) not in sys.path:
     sys.path.insert(0, str(EXAMPLES))
 
 from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, PolicyConfig, TemporalEnsembler,  # noqa: E402
-                        absolute_chunk, chunk_targets, load_checkpoint, masked_l1, quat_mul, save_checkpoint)
-from train_policy import difference_interval, load_demos, pooled_rows, touch_effects, train  # noqa: E402
+                        absolute_chunk, chunk_targets, load_checkpoint, masked_l1, quat_mul, save_checkpoint,
+                        touch_signals)
+from train_policy import (difference_interval, history_rows, load_demos, make_batch,  # noqa: E402
+                          merged_evaluation, pooled_rows, touch_effects, train)
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 TASK = "pull_out_key"
@@ -244,6 +246,91 @@ def test_relative_targets_are_learnt_from_the_measured_state_and_rolled_out_abso
             tiny_config(**bad)
 
 
+def recorded_observation(episode, frame: int) -> dict:
+    """What TaskEnv(cameras=False, tactile_extras=True) observes, rebuilt from a recorded frame."""
+    agent = np.concatenate([episode["robot/ee_pose"][frame], [episode["robot/gripper_width_m"][frame]]])
+    pixels, extras = {}, {}
+    for pad in ("left", "right"):
+        pixels[f"tactile_{pad}"] = episode[f"tactile/{pad}/marked_rgb"][frame]
+        extras[f"{pad}_depth_mm"] = episode[f"tactile/{pad}/depth_um"][frame].astype(np.float32) / 1000.0
+        extras[f"{pad}_force_n"] = np.array([episode[f"tactile/{pad}/normal_force_n"][frame],
+                                             *episode[f"tactile/{pad}/shear_force_n"][frame]], np.float32)
+    return {"pixels": pixels, "agent_pos": agent.astype(np.float32), "tactile": extras}
+
+
+def test_history_is_read_the_same_in_training_and_at_rollout(corpus, tmp_path):
+    """``history`` H: the network reads the past H policy steps of agent_pos and (tactile variants) the
+    pads' touch signals. Training takes them from the rows one policy step apart in the same episode, the
+    episode's first frame standing in before it starts; the rollout keeps them in ``ChunkPolicy`` and
+    pads its first steps with the first observation. Both must give the network the same numbers."""
+    root, episode = corpus
+    config = tiny_config(history=3)
+    demos = load_demos(root, TASK, config, stride=1, log=lambda _: None)
+    t = demos.tensors
+    frames = [0, 40, len(t["agent_pos"]) - 1]
+    for frame in frames:  # the touch signals are the recorded depth and forces
+        want = touch_signals(recorded_observation(episode, frame))
+        assert np.allclose(t["touch"][frame].numpy(), want, atol=1e-6)
+    assert t["touch"][:, :, 0].max() > 0.3  # the key is gripped to 0.5 mm: the signal is there
+    rows = history_rows(torch.tensor([0, 0, 0, 0, 0, 0, 0, 1, 1, 1]), 2, 2)
+    # two steps back, two rows a step, oldest first; nothing reaches into the previous episode
+    assert rows.tolist() == [[0, 0], [0, 0], [0, 0], [0, 1], [0, 2], [1, 3], [2, 4], [7, 7], [7, 7], [7, 7]]
+
+    torch.set_num_threads(1)
+    net, norm, losses = train(demos, config, steps=3, batch_size=8, lr=1e-3, seed=0, shift_px=0, log=lambda _: None)
+    assert np.isfinite(losses).all()
+    targets = chunk_targets(t["agent_pos"], t["action"], config)
+    policy = ChunkPolicy(net, norm)
+    policy.reset()
+    step = demos.subsample  # recorded frames a policy step
+    for k, frame in enumerate(range(0, 8 * step, step)):
+        obs = recorded_observation(episode, frame)
+        batch, _, _ = make_batch(demos, targets, torch.tensor([frame]), norm, config, 0, None)
+        rollout = policy.observation(obs)
+        for key in ("agent_pos", "past_agent", "touch", "tactile_left"):
+            assert torch.allclose(rollout[key], batch[key], atol=1e-5), (k, key)
+        policy.act(obs)
+    assert not torch.equal(rollout["past_agent"][0, 0], rollout["past_agent"][0, -1])  # it did move
+    with pytest.raises(ValueError, match="stride 1"):
+        train(load_demos(root, TASK, config, stride=3, log=lambda _: None), config, steps=1, batch_size=2, lr=1e-3,
+              seed=0, log=lambda _: None)
+    with pytest.raises(ValueError, match="history"):
+        tiny_config(history=-1)
+    with pytest.raises(KeyError, match="--tactile-extras"):
+        policy.observation({**obs, "tactile": None})
+    # a vision policy reads its past agent_pos only: no touch token, no tactile extras needed
+    vision, vnorm, _ = train(demos, tiny_config("vision", history=3), steps=2, batch_size=8, lr=1e-3, seed=0,
+                             shift_px=0, log=lambda _: None)
+    assert vision.touch is None and vision.past_agent is not None
+    blind = ChunkPolicy(vision, vnorm)
+    bare_obs = {"pixels": {}, "agent_pos": obs["agent_pos"]}
+    assert set(blind.observation(bare_obs)) == {"agent_pos", "past_agent"}
+    assert blind.act(bare_obs).shape == (8,)
+
+    # end to end: the rollout needs the pads' signals, so evaluate runs it with --tactile-extras
+    save_checkpoint(tmp_path / "policy.pt", net, norm)
+    env = {CHECKPOINT_ENV: str(tmp_path / "policy.pt")}
+    common = ("evaluate", TASK, "--policy", "act_policy:from_env", "--episodes", "1", "--no-cameras", "--rate-hz", "10")
+    run = cli(*common, "--tactile-extras", "--json", str(tmp_path / "eval.json"), extra_env=env)
+    assert run.returncode == 0, run.stderr
+    report = json.loads((tmp_path / "eval.json").read_text())
+    assert report["errors"] == 0 and report["per_rollout"][0]["steps"] >= 1, report["per_rollout"]
+    without = cli(*common, "--json", str(tmp_path / "bare.json"), extra_env=env)
+    assert without.returncode == 0, without.stderr
+    (bare,) = json.loads((tmp_path / "bare.json").read_text())["per_rollout"]
+    assert bare["reason"].startswith("error") and "--tactile-extras" in bare["reason"]
+
+
+def test_train_refuses_history_it_cannot_read_in_one_line(tmp_path):
+    script = str(EXAMPLES / "train_policy.py")
+    common = [sys.executable, script, "train", "--data", str(tmp_path), "--task", TASK, "--variant", "vision",
+              "--out", str(tmp_path / "run")]
+    for extra, message in ((["--stride", "3"], "use --stride 1"), (["--history", "-2"], "--history must be >= 0")):
+        run = subprocess.run(common + extra, capture_output=True, text=True, timeout=300)
+        assert run.returncode != 0 and message in run.stderr and "Traceback" not in run.stderr, run.stderr
+    assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
 def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     """Newcombe's (1998) worked example of his method 10: 56/70 against 48/80 is +0.2000 (0.0524 to 0.3338);
     and the report pools each variant's training seeds before comparing it with vision."""
@@ -271,6 +358,30 @@ def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     assert [(r["variant"], r["pose"], r["successes"]) for r in pooled] == [
         ("vision", "absolute", 30), ("vision_tactile", "absolute", 55), ("vision_tactile", "relative", 50)]
     assert len(touch_effects(pooled)) == 1
+    # so are runs read with more history or rolled out with another ensembling weight
+    others = [{**row("vision", 4, 5), "history": 25}, {**row("vision", 5, 5), "ensemble_k": -0.5}]
+    pooled = pooled_rows(rows + others)
+    assert [(r["history"], r["ensemble_k"], r["successes"]) for r in pooled if r["variant"] == "vision"] == [
+        (0, 0.01, 30), (25, 0.01, 5), (0, -0.5, 5)]
+    assert len(touch_effects(pooled)) == 1
+
+
+def test_a_run_merges_only_evaluations_made_alike(tmp_path):
+    def evaluation(name: str, first_seed: int, k: float) -> None:
+        rollouts = [{"seed": first_seed + i, "success": i % 2 == 0, "unsafe": False, "reason": "success", "steps": 9}
+                    for i in range(4)]
+        (tmp_path / name).write_text(json.dumps({"per_rollout": rollouts, "ensemble_k": k, "wall_s": 1.0}))
+
+    evaluation("eval.json", 1_000_000, 0.01)
+    evaluation("eval-4.json", 1_000_004, 0.01)
+    merged = merged_evaluation(tmp_path)
+    assert (merged["rollouts"], merged["successes"], merged["ensemble_k"]) == (8, 4, 0.01)
+    evaluation("eval-8.json", 1_000_008, -0.5)
+    with pytest.raises(SystemExit, match="ensemble-k"):
+        merged_evaluation(tmp_path)
+    evaluation("eval-8.json", 1_000_002, 0.01)
+    with pytest.raises(SystemExit, match="overlap"):
+        merged_evaluation(tmp_path)
 
 
 def test_rate_hz_keeps_the_step_limit_as_a_time_limit(tmp_path):

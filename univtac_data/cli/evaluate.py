@@ -34,6 +34,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--contact", choices=("geometric", "elastic"), default="geometric")
     parser.add_argument("--camera-size", type=camera_size, default=(480, 270), metavar="WxH", help="camera size (default 480x270)")
     parser.add_argument("--no-cameras", action="store_true", help="observe no camera images (faster)")
+    parser.add_argument("--tactile-extras", action="store_true",
+                        help="also observe each pad's depth (mm), marker positions (px) and force (N) under "
+                             "obs['tactile'] (TaskEnv's tactile_extras)")
     parser.add_argument("--rate-hz", type=float, default=50.0, metavar="HZ",
                         help="policy steps a second (default 50, the tasks' rate; a whole number of 2 ms ticks); "
                              "the step limit is kept as a time limit (max_steps x HZ / 50)")
@@ -68,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
 
         require_av()
     env_kwargs = {"sensor": args.sensor, "contact": args.contact, "cameras": not args.no_cameras,
-                  "camera_size": args.camera_size, "rate_hz": args.rate_hz}
+                  "camera_size": args.camera_size, "rate_hz": args.rate_hz,
+                  "tactile_extras": args.tactile_extras}
     report = evaluate(args.name, args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs,
                       video_dir=args.video, videos=args.videos, progress=sys.stderr.isatty())
     s = report.summary()

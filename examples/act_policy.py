@@ -112,6 +112,11 @@ class PolicyConfig:
     def uses_tactile(self) -> bool:
         return self.variant != "vision"
 
+    @property
+    def reads_touch(self) -> bool:
+        """Whether the network reads the pads' touch signals (a tactile variant with history)."""
+        return self.uses_tactile and self.history > 0
+
 
 # ----------------------------------------------------------------------------------------- preprocessing
 
@@ -295,7 +300,7 @@ class ChunkPolicyNet(nn.Module):
         self.touch: nn.Module | None = None
         if config.history:
             self.past_agent = nn.Sequential(nn.Linear(config.history * 8, d), nn.ReLU(), nn.Linear(d, d))
-            if config.uses_tactile:
+            if config.reads_touch:
                 width = (config.history + 1) * len(PADS) * len(TOUCH_SIGNALS)
                 self.touch = nn.Sequential(nn.Linear(width, d), nn.ReLU(), nn.Linear(d, d))
         n_history = (self.past_agent is not None) + (self.touch is not None)
@@ -410,8 +415,10 @@ class ChunkPolicy:
         self.ensembler.reset()
         self._past.clear()
 
-    def observation(self, obs: dict[str, Any]) -> dict[str, torch.Tensor]:
-        """An environment observation -> the network's inputs (batch of one), prepared as in training."""
+    def observation(self, obs: dict[str, Any],
+                    now: tuple[np.ndarray, np.ndarray | None] | None = None) -> dict[str, torch.Tensor]:
+        """An environment observation -> the network's inputs (batch of one), prepared as in training.
+        ``now``: this observation's ``_now`` if the caller has it already."""
         cfg = self.config
         agent = torch.as_tensor(np.asarray(obs["agent_pos"], np.float32))[None]
         out = {"agent_pos": (agent - self.norm.agent_mean) / self.norm.agent_std}
@@ -424,31 +431,34 @@ class ChunkPolicy:
             for pad in PADS:
                 out[f"tactile_{pad}"] = resize_uint8(hwc_to_chw(pixels[f"tactile_{pad}"]), cfg.tactile_hw).float() / 255.0
         if cfg.history:
-            now = self._now(obs)
+            now = self._now(obs) if now is None else now
             past = list(self._past)
             past = [past[0] if past else now] * (cfg.history - len(past)) + past
             agents = torch.from_numpy(np.stack([a for a, _ in past]))[None]
             out["past_agent"] = past_agent_input(agents, agent[0][None], self.norm)
-            if cfg.uses_tactile:
+            if cfg.reads_touch:
                 touches = np.stack([t for _, t in [*past, now]])  # type: ignore[misc]
                 out["touch"] = touch_input(torch.from_numpy(touches)[None])
         return out
 
     def _now(self, obs: dict[str, Any]) -> tuple[np.ndarray, np.ndarray | None]:
-        touch = touch_signals(obs) if self.config.uses_tactile else None
+        """This step's agent_pos and (if the network reads them) touch signals, as ``_past`` keeps them."""
+        touch = touch_signals(obs) if self.config.reads_touch else None
         return np.asarray(obs["agent_pos"], np.float32), touch
 
     @torch.no_grad()
-    def predict_chunk(self, obs: dict[str, Any]) -> np.ndarray:
+    def predict_chunk(self, obs: dict[str, Any],
+                      now: tuple[np.ndarray, np.ndarray | None] | None = None) -> np.ndarray:
         """(C, 8) absolute actions (denormalised) for this step and the next C - 1."""
-        pred = self.net(self.observation(obs))[0]
+        pred = self.net(self.observation(obs, now))[0]
         chunk = (pred * self.norm.action_std + self.norm.action_mean).numpy()
         return absolute_chunk(chunk, np.asarray(obs["agent_pos"], np.float32), self.config)
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:
-        action = self.ensembler(self.predict_chunk(obs))
-        if self.config.history:
-            self._past.append(self._now(obs))
+        now = self._now(obs) if self.config.history else None  # read once: the input now, the past next step
+        action = self.ensembler(self.predict_chunk(obs, now))
+        if now is not None:
+            self._past.append(now)
         quat = action[3:7]
         action[3:7] = quat / max(float(np.linalg.norm(quat)), 1e-9)
         return action.astype(np.float32)

@@ -215,7 +215,7 @@ def make_batch(cache: DemoCache, targets: torch.Tensor, index: torch.Tensor, nor
     if config.history:
         past = t["history_rows"][index]
         obs["past_agent"] = past_agent_input(t["agent_pos"][past], t["agent_pos"][index], norm)
-        if config.uses_tactile:
+        if config.reads_touch:
             obs["touch"] = touch_input(t["touch"][torch.cat([past, index[:, None]], 1)])
     actions = (targets[index] - norm.action_mean) / norm.action_std
     return obs, actions, t["action_is_pad"][index]
@@ -361,7 +361,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     summary = json.loads((run / "train.json").read_text())
     camera_size = summary["camera_size"] if summary["cameras"] else None
     json_path = run / ("eval.json" if args.seed == 0 else f"eval-{args.seed}.json")
-    touch = summary.get("history", 0) > 0 and summary["variant"] != "vision"
+    touch = summary.get("history", 0) > 0 and summary["variant"] != "vision"  # PolicyConfig.reads_touch
     cmd = evaluate_command(summary["task"], args.episodes, summary["rate_hz"], camera_size, json_path, args.seed, touch)
     print(" ".join(cmd), flush=True)
     start = time.perf_counter()

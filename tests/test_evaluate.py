@@ -30,6 +30,8 @@ def test_wilson_interval_matches_the_closed_form():
     assert lo == pytest.approx(0.8882, abs=1e-3) and hi == pytest.approx(0.9785, abs=1e-3)
     lo, hi = wilson_interval(0, 10)
     assert lo == 0.0 and hi == pytest.approx(0.2775, abs=1e-3)
+    # all successes: the interval ends at exactly 1 (a chart's error bar must not come out negative)
+    assert wilson_interval(300, 300)[1] == 1.0 and wilson_interval(100, 100) == (pytest.approx(0.963, abs=1e-3), 1.0)
 
 
 def test_expert_succeeds_and_zero_does_not_on_evaluation_seeds():

@@ -15,7 +15,9 @@ from gymnasium.utils.env_checker import check_env
 
 from univtac_data import Dataset
 from univtac_data.episode import content_hash
+from univtac_data.generators.scene import sim as sim_module
 from univtac_data.generators.scene.touch import read_touch
+from univtac_data.generators.tactile.gap_field import gap_field
 from univtac_data.generators.tactile import GAP_FAR_MM, sensor_grid
 from univtac_data.generators.tasks.base import EVAL_SEED_BASE, TaskConfig
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
@@ -106,6 +108,37 @@ def test_touch_reading_of_a_band_and_of_a_tilted_strip():
     edge = read_touch(strip, grid)
     assert edge.centroid_mm[0] < -10.0 and math.atan2(edge.max_depth_mm, edge.span_x_mm) == pytest.approx(tilt, abs=0.02)
     assert not read_touch(np.full(grid.shape, GAP_FAR_MM), grid).touching
+
+
+@pytest.mark.parametrize("contact_method", ["geometric", "elastic"])
+def test_touch_after_a_recorded_frame_reads_its_fields_and_equals_its_own(contact_method, monkeypatch):
+    """An expert reads the pads right after a frame is recorded: touch() then takes the frame's gap fields
+    (cut off at 0 or 2 mm, its own at 1 mm) and must read exactly what its own fields give; once the scene
+    has moved it makes its own again. Grasp Classify: a knurl (textures) on a held cylinder."""
+    session = TaskSession(make_task("grasp_classify_held", TaskConfig(cameras=False, contact_method=contact_method)),
+                          record=True)
+    try:
+        session.reset(3)  # frame 0 recorded: the knurled cylinder in the grasp
+        sim = session.sim
+        checked = 0
+        made = []
+        monkeypatch.setattr(sim_module, "gap_field", lambda *a, **kw: made.append(1) or gap_field(*a, **kw))
+        for k in range(4):
+            assert sim._recorded_fields_current()
+            made.clear()
+            reused = sim.touch()
+            assert not made  # no field made: the recorded ones were read
+            kept, sim._recorded_geom_poses = sim._recorded_geom_poses, None
+            own = sim.touch()
+            sim._recorded_geom_poses = kept
+            assert reused == own and own["left"].touching and own["right"].touching
+            checked += 1
+            sim.tick()  # the scene moves, nothing recorded: the fields are stale
+            assert not sim._recorded_fields_current()
+            session.step(session.last_action + np.array([0.004, 0, 0, 0, 0, 0, 0, 0]))
+        assert checked == 4
+    finally:
+        session.close()
 
 
 @pytest.mark.parametrize("name", TASK_NAMES)

@@ -107,6 +107,35 @@ SUCCESS_HEIGHT_M = 0.01
 MAX_TILT_RAD = math.radians(15.0)
 
 
+TABLE_ASSETS_XML = """
+    <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.84" rgb2="0.74 0.74 0.77" width="256" height="256"/>
+    <material name="table" texture="grid" texrepeat="8 8"/>"""
+HEAD_EYE_M = (0.42, 0.0, 0.27)
+
+
+def table_and_pads_xml() -> str:
+    """MJCF (world body children) of the scene's lights, the table (material ``table`` of ``TABLE_ASSETS_XML``)
+    and the two goal pads."""
+    pads = []
+    for cls in CLASSES:
+        px, py = GOAL_PADS_XY_M[cls]
+        hx, hy, hz = GOAL_PAD_HALF_M
+        pads.append(f'\n    <geom name="{cls}_pad" type="box" pos="{px} {py} {hz}" size="{hx} {hy} {hz}" '
+                    f'rgba="{GOAL_PAD_RGBA[cls]}" friction="0.8 0.005 0.0001"/>')
+    return f"""
+    <light pos="0.3 -0.4 1.0" dir="-0.3 0.4 -1"/>
+    <light pos="-0.4 0.3 0.8" dir="0.4 -0.3 -1" diffuse="0.4 0.4 0.4"/>
+    <geom name="ground" type="plane" size="0.6 0.6 0.01" material="table" friction="0.8 0.005 0.0001"/>
+    {''.join(pads)}"""
+
+
+def head_camera_xml() -> str:
+    """The head camera, looking at the table between the cylinders and the pads."""
+    eye = HEAD_EYE_M
+    return (f'<camera name="head" pos="{eye[0]} {eye[1]} {eye[2]}" '
+            f'xyaxes="{look_at_xyaxes(eye, (0.0, 0.0, 0.04))}" fovy="45"/>')
+
+
 def grasp_law(profile: SensorProfile) -> GraspLaw:
     """The kit's tactile grasp to 0.5 mm on the GelSight Mini, 0.3 mm on the sensors whose safe limit is 0.8 mm.
     Its slow phase also pushes a cylinder that one pad reached first across to the other (the camera's centre
@@ -188,7 +217,7 @@ class GraspClassify(Task):
 
     def scene_xml(self, layout: dict[str, Any]) -> str:
         r, half = layout["radius_m"], layout["height_m"] / 2
-        cylinders, pads = [], []
+        cylinders = []
         for cls in CLASSES:
             name = self.cylinder_of(layout, cls)
             x, y = self.cylinder_xy(layout, cls)
@@ -199,27 +228,16 @@ class GraspClassify(Task):
       <geom name="{name}" type="cylinder" size="{r} {half}" mass="{layout['mass_kg']}" rgba="{CYLINDER_RGBA}"
             friction="0.8 0.005 0.0001" condim="4"/>
     </body>""")
-            px, py = GOAL_PADS_XY_M[cls]
-            hx, hy, hz = GOAL_PAD_HALF_M
-            pads.append(f'\n    <geom name="{cls}_pad" type="box" pos="{px} {py} {hz}" size="{hx} {hy} {hz}" '
-                        f'rgba="{GOAL_PAD_RGBA[cls]}" friction="0.8 0.005 0.0001"/>')
         params = GripperParams(mount="welded")
-        eye = (0.42, 0.0, 0.27)
         contacts = "".join(PadContact().pair_xml(name) for name in self.objects())
         return f"""<mujoco model="grasp_classify">
   <compiler angle="radian" autolimits="true"/>
   {TASK_OPTION_XML}
-  <asset>
-    <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.82 0.84" rgb2="0.74 0.74 0.77" width="256" height="256"/>
-    <material name="table" texture="grid" texrepeat="8 8"/>
+  <asset>{TABLE_ASSETS_XML}
   </asset>
-  <worldbody>
-    <light pos="0.3 -0.4 1.0" dir="-0.3 0.4 -1"/>
-    <light pos="-0.4 0.3 0.8" dir="0.4 -0.3 -1" diffuse="0.4 0.4 0.4"/>
-    <geom name="ground" type="plane" size="0.6 0.6 0.01" material="table" friction="0.8 0.005 0.0001"/>
-    {''.join(pads)}{''.join(cylinders)}
+  <worldbody>{table_and_pads_xml()}{''.join(cylinders)}
     {gripper_body_xml(self.profile, params, (0.0, 0.0, 0.3))}
-    <camera name="head" pos="{eye[0]} {eye[1]} {eye[2]}" xyaxes="{look_at_xyaxes(eye, (0.0, 0.0, 0.04))}" fovy="45"/>
+    {head_camera_xml()}
   </worldbody>
   <contact>{contacts}</contact>
   <actuator>{gripper_actuator_xml(params)}</actuator>

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from univtac_data.generators.tasks.base import Task, TaskConfig
 from univtac_data.generators.tasks.grasp_classify import GraspClassify
+from univtac_data.generators.tasks.grasp_classify_held import GraspClassifyHeld
 from univtac_data.generators.tasks.insert_hdmi import InsertHDMI
 from univtac_data.generators.tasks.insert_hole import InsertHole
 from univtac_data.generators.tasks.insert_tube import InsertTube
@@ -13,10 +14,12 @@ from univtac_data.generators.tasks.pull_out_key import PullOutKey
 from univtac_data.generators.tasks.put_bottle_in_shelf import PutBottleInShelf
 from univtac_data.schema.sensors import get_sensor
 
-# the paper's order: pose reasoning, shape perception, contact-rich
+# the paper's order: pose reasoning, shape perception, contact-rich; Grasp Classify's held version (the paper's
+# policy protocol) beside it
 TASKS: dict[str, type[Task]] = {
     cls.name: cls
-    for cls in (LiftCan, LiftBottle, PutBottleInShelf, GraspClassify, InsertHole, InsertTube, InsertHDMI, PullOutKey)
+    for cls in (LiftCan, LiftBottle, PutBottleInShelf, GraspClassify, GraspClassifyHeld, InsertHole, InsertTube,
+                InsertHDMI, PullOutKey)
 }
 TASK_NAMES: tuple[str, ...] = tuple(TASKS)
 

@@ -31,7 +31,7 @@ Success
 Safety (per step)
     the kit's: deepest indentation within the sensor's safe limit, in-hand slip <= 5 mm.
 Step limit
-    300 policy steps (UniVTAC's: 6 s at 50 Hz); the expert takes 50-60 at 50 Hz.
+    300 policy steps (6 s at 50 Hz; UniVTAC allows 300 at 60 Hz); the expert takes 60-66 at 50 Hz (seeds 0-99).
 Version history
     v0: first version.
 """

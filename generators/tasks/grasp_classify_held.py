@@ -3,7 +3,7 @@ and must put it on the pad of its class, which only touch can tell.
 
 Description
     UniVTAC evaluates Grasp Classify this way: the set-up grasps the one object and lifts it 5 cm, and the policy
-    only carries and places it; "the whole task is the decision" (``../shared/design/tasks-reference.md``).
+    only carries and places it (UniVTAC's ``envs/grasp_classify.py``): the whole task is the decision.
     ``grasp_classify`` is the longer version (two cylinders picked and sorted, re-placed after a miss); this one
     isolates the decision: the carry is short and the grasp is made for the policy, so what separates a
     policy that reads the pads from one that does not is the choice of pad, not picking skill.

@@ -334,17 +334,17 @@ class GraspClassify(Task):
 
     # --- checks ------------------------------------------------------------------------------------
     def success(self, state: TaskState) -> bool:
-        pad_top = 2 * GOAL_PAD_HALF_M[2]
-        for cls in CLASSES:
-            pose = state.objects[self.cylinder_of(state.layout, cls)]
-            axis = quat_to_mat(pose[3:])[:, 2]
-            tilt = math.acos(min(1.0, abs(float(axis[2]))))
-            base_z = pose[2] - abs(float(axis[2])) * HEIGHT_M / 2
-            if np.linalg.norm(pose[:2] - np.asarray(GOAL_PADS_XY_M[cls])) >= SUCCESS_RADIUS_M:
-                return False
-            if abs(base_z - pad_top) >= SUCCESS_HEIGHT_M or tilt >= MAX_TILT_RAD:
-                return False
-        return True
+        return all(on_its_pad(state.objects[self.cylinder_of(state.layout, cls)], cls) for cls in CLASSES)
 
 
-__all__ = ["GraspClassify", "classify_from_touch", "closing_yaw", "grasp_law", "offset_along_pads_m"]
+def on_its_pad(pose: np.ndarray, cls: str) -> bool:
+    """Whether a cylinder at ``pose`` (7,) world is on ``cls``'s pad: centre within ``SUCCESS_RADIUS_M`` (xy) of
+    the pad's centre, base within ``SUCCESS_HEIGHT_M`` of its top, axis tilted less than ``MAX_TILT_RAD``."""
+    axis = quat_to_mat(pose[3:])[:, 2]
+    tilt = math.acos(min(1.0, abs(float(axis[2]))))
+    base_z = pose[2] - abs(float(axis[2])) * HEIGHT_M / 2
+    return bool(np.linalg.norm(pose[:2] - np.asarray(GOAL_PADS_XY_M[cls])) < SUCCESS_RADIUS_M
+                and abs(base_z - 2 * GOAL_PAD_HALF_M[2]) < SUCCESS_HEIGHT_M and tilt < MAX_TILT_RAD)
+
+
+__all__ = ["GraspClassify", "classify_from_touch", "closing_yaw", "grasp_law", "offset_along_pads_m", "on_its_pad"]

@@ -63,17 +63,15 @@ from univtac_data.generators.tasks.grasp_classify import (
     HEIGHT_M,
     KNURL,
     MASS_KG,
-    MAX_TILT_RAD,
     RADIUS_M,
-    SUCCESS_HEIGHT_M,
-    SUCCESS_RADIUS_M,
     TABLE_ASSETS_XML,
     classify_from_touch,
     head_camera_xml,
     offset_along_pads_m,
+    on_its_pad,
     table_and_pads_xml,
 )
-from univtac_data.generators.tasks.motions import grasp_depth_mm, move_to
+from univtac_data.generators.tasks.motions import held_opening_m, move_to
 
 CYLINDER = "cylinder"
 START_XY_M = (-0.03, 0.0)  # centre of the held cylinder's start, world
@@ -82,11 +80,6 @@ START_YAW_MAX_RAD = math.radians(30.0)
 START_BASE_Z_M = 0.05  # the set-up lifted the cylinder's base this far above the table (UniVTAC: 5 cm)
 HOVER_M = 0.005  # the expert stops the base this far above the pad's top
 HOLD_S = 0.1
-
-
-def held_opening_m(profile: Any) -> float:
-    """The opening the set-up leaves the fingers at: the cylinder's diameter less the grasp depth on each pad."""
-    return 2 * RADIUS_M - 2 * grasp_depth_mm(profile) / 1000
 
 
 class GraspClassifyHeld(Task):
@@ -113,7 +106,7 @@ class GraspClassifyHeld(Task):
     def start_pose(self, layout: dict[str, Any]) -> np.ndarray:
         x, y = layout["start_xy_m"]
         quat = yaw_quat(layout["start_yaw_rad"])
-        return np.array([x, y, START_BASE_Z_M + GRASP_HEIGHT_M, *quat, held_opening_m(self.profile)])
+        return np.array([x, y, START_BASE_Z_M + GRASP_HEIGHT_M, *quat, held_opening_m(self.profile, 2 * RADIUS_M)])
 
     def scene_xml(self, layout: dict[str, Any]) -> str:
         r, half = layout["radius_m"], layout["height_m"] / 2
@@ -155,13 +148,7 @@ class GraspClassifyHeld(Task):
 
     # --- checks ------------------------------------------------------------------------------------
     def success(self, state: TaskState) -> bool:
-        pose = state.objects[CYLINDER]
-        axis = quat_to_mat(pose[3:])[:, 2]
-        tilt = math.acos(min(1.0, abs(float(axis[2]))))
-        base_z = pose[2] - abs(float(axis[2])) * HEIGHT_M / 2
-        goal = np.asarray(GOAL_PADS_XY_M[state.layout["held_class"]])
-        return bool(np.linalg.norm(pose[:2] - goal) < SUCCESS_RADIUS_M
-                    and abs(base_z - 2 * GOAL_PAD_HALF_M[2]) < SUCCESS_HEIGHT_M and tilt < MAX_TILT_RAD)
+        return on_its_pad(state.objects[CYLINDER], state.layout["held_class"])
 
 
-__all__ = ["GraspClassifyHeld", "held_opening_m"]
+__all__ = ["GraspClassifyHeld"]

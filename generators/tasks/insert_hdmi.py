@@ -65,7 +65,7 @@ from univtac_data.generators.scene.gripper import GripperParams, gripper_actuato
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.scene.touch import TouchReading
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskState, yaw_quat
-from univtac_data.generators.tasks.motions import grasp_depth_mm, move_to, rotate_about, wait
+from univtac_data.generators.tasks.motions import held_opening_m, move_to, rotate_about, wait
 
 SHELL_HALF_M = (0.0070, 0.00225, 0.0050)
 BODY_HALF_M = (0.010, 0.0040, 0.011)
@@ -140,7 +140,7 @@ class InsertHDMI(Task):
 
     def start_pose(self, layout: dict[str, Any]) -> np.ndarray:
         seen = self.seen_socket(layout)
-        opening = 2 * GRIP_HALF_M[1] - 2 * grasp_depth_mm(self.profile) / 1000.0
+        opening = held_opening_m(self.profile, 2 * GRIP_HALF_M[1])
         z = SOCKET_TOP_M + 0.010 + GRIP_CENTRE_M
         return np.array([seen[0], seen[1], z, *yaw_quat(GRIPPER_YAW), opening])
 

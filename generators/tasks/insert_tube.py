@@ -59,7 +59,7 @@ from univtac_data.generators.scene.gripper import GripperParams, gripper_actuato
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState
 from univtac_data.generators.tasks.holes import Bore, HoleContact, in_hole_frame, square_plate_xml
-from univtac_data.generators.tasks.motions import grasp_depth_mm, move_to, wait
+from univtac_data.generators.tasks.motions import held_opening_m, move_to, wait
 from univtac_data.schema.sensors import SensorProfile
 
 TUBE_RADIUS_M = 0.010
@@ -88,7 +88,7 @@ INSERT_SPEED_M_S = 0.02
 
 def grip_opening_m(profile: SensorProfile) -> float:
     """The opening the set-up leaves the fingers at on the 2.0 cm tube: the kit's grasp depth on each pad."""
-    return 2 * TUBE_RADIUS_M - 2 * grasp_depth_mm(profile) / 1000
+    return held_opening_m(profile, 2 * TUBE_RADIUS_M)
 
 
 def search_ring() -> list[np.ndarray]:

@@ -99,6 +99,12 @@ def grasp_depth_mm(profile: SensorProfile) -> float:
     return 0.5 if profile.safe_indentation_mm >= 1.5 else 0.3
 
 
+def held_opening_m(profile: SensorProfile, width_m: float) -> float:
+    """The opening a set-up leaves the fingers at on an object ``width_m`` wide between the pads (m): its width
+    less the kit's grasp depth (``grasp_depth_mm``) on each pad."""
+    return width_m - 2 * grasp_depth_mm(profile) / 1000
+
+
 def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> Iterator[Step]:
     """Close on an object until both pads reach ``law.threshold_mm``; sets ``ctx.memory['grasped']``."""
     ctx.memory["grasped"] = False
@@ -120,4 +126,4 @@ def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> 
         yield ctx.step(primitive, action)
 
 
-__all__ = ["GraspLaw", "close_until", "grasp_depth_mm", "move_to", "open_to", "rotate_about", "steps_for", "wait"]
+__all__ = ["GraspLaw", "close_until", "grasp_depth_mm", "held_opening_m", "move_to", "open_to", "rotate_about", "steps_for", "wait"]

@@ -12,7 +12,8 @@ Steps:
    ``--image-size`` (the reconstruction targets at ``--target-size``) and cached beside the corpus.
 2. Split by episode: per shape, a share ``--held-out`` of the episodes (smallest hash of the episode id) is
    held out; no frame of a held-out episode is used for training the encoder or fitting a probe.
-   ``--train-episodes N`` trains on at most N of the others per shape (the held-out ones stay the same).
+   ``--train-episodes N`` trains on at most N of the others per shape (the held-out ones stay the same);
+   ``--split-seed S`` hashes with another seed, holding out other episodes.
 3. Train ``TactileEncoder`` (examples/tactile_encoder.py) with the three pathways: shape (I_pure
    reconstruction weighted toward the contact region, plus an episode-contrastive term between two augmented
    frames of one episode, the second turned by any angle so that the imprint's orientation cannot tell
@@ -89,6 +90,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--train-episodes", type=int, metavar="N",
                    help="train the encoder and fit the probes on at most N episodes per shape (default: all "
                         "that are not held out; the held-out episodes do not change)")
+    p.add_argument("--split-seed", type=int, default=0,
+                   help="seed of the episode-id hash that chooses the held-out episodes (default 0); another "
+                        "seed measures the same recipe on other held-out episodes")
     p.add_argument("--steps", type=int, default=5000, help="optimiser steps (at most, with --max-minutes)")
     p.add_argument("--max-minutes", type=float, help="wall-clock budget of the training loop")
     p.add_argument("--batch-size", type=int, default=64)
@@ -246,32 +250,35 @@ def _read_episode(handle: Any, e: int, shapes: list[str], size: tuple[int, int],
             parts.setdefault(k, []).append(v)
 
 
-def held_out_split(episode_ids: list[str], shapes_of: list[str], fraction: float, max_train: int | None = None) \
-        -> tuple[list[str], list[str]]:
+def held_out_split(episode_ids: list[str], shapes_of: list[str], fraction: float, max_train: int | None = None,
+                   split_seed: int = 0) -> tuple[list[str], list[str]]:
     """``(train_ids, held_ids)``: per shape, the episodes with the smallest hash positions are held out (at
     least one when the shape has two or more), so every shape is on both sides; disjoint by construction.
     ``max_train``: keep at most this many training episodes per shape (the next ones in hash order), so
-    training on fewer episodes can be measured against the same held-out episodes."""
+    training on fewer episodes can be measured against the same held-out episodes. ``split_seed``: another
+    seed of the hash (``loaders.split.split_position``) holds out other episodes, to see how much a result
+    depends on which episodes it was measured on."""
     by_shape: dict[str, list[str]] = {}
     for eid, shape in zip(episode_ids, shapes_of):
         by_shape.setdefault(shape, []).append(eid)
     train, held = [], []
     for ids in by_shape.values():
-        ids = sorted(ids, key=split_position)
+        ids = sorted(ids, key=lambda eid: split_position(eid, split_seed))
         n_held = min(len(ids) - 1, max(1, round(fraction * len(ids)))) if len(ids) > 1 else 0
         held += ids[:n_held]
         train += ids[n_held:] if max_train is None else ids[n_held:n_held + max_train]
     return sorted(train), sorted(held)
 
 
-def split_masks(corpus: Corpus, fraction: float, max_train: int | None = None) \
+def split_masks(corpus: Corpus, fraction: float, max_train: int | None = None, split_seed: int = 0) \
         -> tuple[torch.Tensor, torch.Tensor, list[str], list[str]]:
     """Sample masks (train, held out) of ``corpus`` by episode, and the episode ids on each side (with
     ``max_train``, the samples of the training episodes left out are in neither mask)."""
     first = {int(e): int(lab) for e, lab in zip(corpus.episode.tolist(), corpus.label.tolist())}
     present = sorted(first)
     ids = [corpus.episode_ids[e] for e in present]
-    train_ids, held_ids = held_out_split(ids, [corpus.shapes[first[e]] for e in present], fraction, max_train)
+    train_ids, held_ids = held_out_split(ids, [corpus.shapes[first[e]] for e in present], fraction, max_train,
+                                         split_seed)
     position = {eid: i for i, eid in enumerate(corpus.episode_ids)}
 
     def mask(side: list[str]) -> torch.Tensor:
@@ -635,7 +642,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         corpus = load_corpus(Path(data), args.sensor, size, args.contact_mm, cache, target_size=target)
     except DatasetError as error:
         raise SystemExit(f"pretrain_encoder: {error}") from None
-    train_mask, held_mask, train_ids, held_ids = split_masks(corpus, args.held_out, args.train_episodes)
+    train_mask, held_mask, train_ids, held_ids = split_masks(corpus, args.held_out, args.train_episodes,
+                                                             args.split_seed)
     read_s = time.perf_counter() - t0
     print(f"{len(corpus.label)} samples in contact from {len(corpus.episode_ids)} episodes, {len(corpus.shapes)} "
           f"shapes; {len(train_ids)} training / {len(held_ids)} held-out episodes ({read_s:.0f} s to read)", flush=True)
@@ -670,6 +678,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "encoder": model.config.to_dict(), "augment": asdict(augment), "weights": asdict(weights),
         "shapes": corpus.shapes, "symmetry_order": {s: rotational_symmetry(s) for s in corpus.shapes},
         "train_episodes": len(train_ids), "train_episodes_per_shape_cap": args.train_episodes,
+        "split_seed": args.split_seed,
         "held_out_episodes": len(held_ids),
         "train_samples": int(train_mask.sum()), "held_out_samples": int(held_mask.sum()),
         "held_out_episode_ids": held_ids,

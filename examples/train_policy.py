@@ -545,27 +545,61 @@ def chart(pooled: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def run_key(row: dict[str, Any]) -> tuple[str, str, int, tuple[str, str, int, float]]:
+    """What makes two rows the same run: task, variant, training seed and recipe."""
+    return row["task"], row["variant"], int(row.get("seed", 0)), recipe(row)
+
+
+def merged_rows(earlier: list[dict[str, Any]], new: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """An earlier report's rows with ``new`` added; a new row replaces an earlier one of the same run
+    (``run_key``), so re-evaluating a run does not count it twice."""
+    keys = {run_key(r) for r in new}
+    order = {v: k for k, v in enumerate(VARIANTS)}
+    return sorted([r for r in earlier if run_key(r) not in keys] + new,
+                  key=lambda r: (r["task"], order[r["variant"]], int(r.get("seed", 0))))
+
+
+def read_json_arg(flag: str, path: str) -> dict[str, Any]:
+    try:
+        value = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"{flag} {path}: not a readable JSON file ({err})") from None
+    if not isinstance(value, dict):
+        raise SystemExit(f"{flag} {path}: not a JSON object")
+    return value
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     rows = collect_rows([Path(r) for r in args.runs])
     if not rows:
         raise SystemExit("no run has both train.json and eval.json")
-    report: dict[str, Any] = {"machine": machine(), "note": args.note}
+    # --merge: runs whose directories are gone stay in the report, as the earlier report measured them
+    earlier = read_json_arg("--merge", args.merge) if args.merge else {}
+    if earlier and not isinstance(earlier.get("rows"), list):
+        raise SystemExit(f"--merge {args.merge}: not a report of this script (no 'rows' list)")
+    report: dict[str, Any] = {"machine": machine(), "note": args.note or earlier.get("note", "")}
+    if "machine" in earlier and earlier["machine"] != report["machine"]:
+        report["earlier_machine"] = earlier["machine"]
     if args.setup:  # what the runs started from (generation times, reference rates), measured elsewhere
-        try:
-            report["setup"] = json.loads(Path(args.setup).read_text())
-        except (OSError, ValueError) as err:
-            raise SystemExit(f"--setup {args.setup}: not a readable JSON file ({err})") from None
-    report["rows"] = rows
-    report["pooled"] = pooled_rows(rows)
+        report["setup"] = read_json_arg("--setup", args.setup)
+    elif "setup" in earlier:
+        report["setup"] = earlier["setup"]
+    report["rows"] = merged_rows(earlier.get("rows", []), rows)
+    report["pooled"] = pooled_rows(report["rows"])
     report["touch_effects"] = touch_effects(report["pooled"])
+    if "ablations" in earlier and not args.ablation_runs:
+        report["ablations"] = earlier["ablations"]
     notes = args.ablation_note or []
     for k, runs in enumerate(args.ablation_runs or []):
         ablation = collect_rows([Path(r) for r in runs])
         pooled = pooled_rows(ablation)
         report.setdefault("ablations", []).append({"note": notes[k] if k < len(notes) else "", "rows": ablation,
                                                    "pooled": pooled, "touch_effects": touch_effects(pooled)})
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".tmp")  # --merge may name the file it writes: never leave it half-written
+    partial.write_text(json.dumps(report, indent=1) + "\n")
+    os.replace(partial, out)
     if args.chart:
         chart(report["pooled"], Path(args.chart))
     for r in report["pooled"]:
@@ -633,6 +667,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="a group of runs reported apart (e.g. another rollout setting or rate); repeat for more")
     rp.add_argument("--ablation-note", action="append", default=None, help="a note per --ablation-runs group")
     rp.add_argument("--setup", default=None, help="JSON file stored as the report's 'setup' (e.g. generation times)")
+    rp.add_argument("--merge", default=None, metavar="JSON",
+                    help="an earlier report whose rows, setup, note and ablations are kept: the runs given add "
+                         "to its rows and replace those of the same task, variant, seed and recipe")
     args = parser.parse_args(argv)
     return {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report}[args.command](args)
 

@@ -86,6 +86,11 @@ def test_probe_never_sees_frames_of_its_test_episodes(  # type: ignore[no-untype
     _, more_held = recipe.held_out_split(ids + ["gelsight_mini-cross-0099"],
                                          [i.split("-")[1] for i in ids] + ["cross"], 0.34)
     assert {i for i in more_held if "-cross-" not in i} == {i for i in held_ids if "-cross-" not in i}
+    # another split seed holds out other episodes, with the same guarantees
+    _, other_held_mask, other_train, other_held = recipe.split_masks(corpus, 0.34, split_seed=1)
+    assert not set(other_train) & set(other_held) and len(other_held) == len(held_ids)
+    assert set(other_held) != set(held_ids)
+    assert set(corpus.label[other_held_mask].tolist()) == set(range(len(SHAPES)))
 
 
 def test_corpus_keeps_frames_in_contact_with_pose_targets(corpus) -> None:  # type: ignore[no-untyped-def]

@@ -29,6 +29,7 @@ if str(EXAMPLES) not in sys.path:
 from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, PolicyConfig, TemporalEnsembler,  # noqa: E402
                         absolute_chunk, chunk_targets, load_checkpoint, masked_l1, quat_mul, save_checkpoint,
                         touch_signals)
+from train_policy import main as train_policy_main  # noqa: E402
 from train_policy import (difference_interval, history_rows, load_demos, make_batch,  # noqa: E402
                           merged_evaluation, pooled_rows, touch_effects, train)
 
@@ -364,6 +365,53 @@ def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     assert [(r["history"], r["ensemble_k"], r["successes"]) for r in pooled if r["variant"] == "vision"] == [
         (0, 0.01, 30), (25, 0.01, 5), (0, -0.5, 5)]
     assert len(touch_effects(pooled)) == 1
+
+
+def test_report_merge_keeps_earlier_rows_and_replaces_a_rerun(tmp_path, capsys):
+    """``report --merge``: the earlier report's rows (runs whose directories are gone), setup and ablations stay;
+    a run of the same task, variant, seed and recipe replaces its earlier row; a bad file is one clear error."""
+    def run_dir(name: str, task: str, variant: str, seed: int, wins: int) -> Path:
+        run = tmp_path / name
+        run.mkdir()
+        (run / "train.json").write_text(json.dumps({
+            "task": task, "variant": variant, "demos": 2, "rate_hz": 25.0, "demo_rate_hz": 25.0, "chunk": 4,
+            "steps": 3, "epochs": 1.0, "batch_size": 2, "samples": 10, "trainable_parameters": 5, "read_s": 0.1,
+            "train_s": 1.0, "loss_first_100": 1.0, "loss_last_100": 0.5, "camera_size": "128x72", "seed": seed,
+            "pose": "relative", "opening": "relative", "history": 25}))
+        rollouts = [{"seed": 1_000_000 + i, "success": i < wins, "unsafe": False,
+                     "reason": "success" if i < wins else "step_limit", "steps": 9} for i in range(4)]
+        (run / "eval.json").write_text(json.dumps({"per_rollout": rollouts, "ensemble_k": 0.01, "wall_s": 1.0}))
+        return run
+
+    first = [run_dir("a", "insert_hdmi", "vision", 0, 1), run_dir("b", "insert_hdmi", "vision_tactile", 0, 3)]
+    earlier = tmp_path / "earlier.json"
+    assert train_policy_main(["report", "--runs", *map(str, first), "--json", str(earlier), "--note", "round 1"]) == 0
+    report = json.loads(earlier.read_text())
+    report["setup"] = {"demonstrations": {"insert_hdmi": {"episodes": 2}}}
+    report["ablations"] = [{"note": "old recipe", "rows": []}]
+    earlier.write_text(json.dumps(report))
+
+    added = run_dir("c", "lift_can", "vision", 0, 2)
+    rerun = run_dir("d", "insert_hdmi", "vision", 0, 4)  # the same run as "a", evaluated again
+    merged = tmp_path / "merged.json"
+    assert train_policy_main(["report", "--runs", str(added), str(rerun), "--merge", str(earlier),
+                              "--json", str(merged)]) == 0
+    out = json.loads(merged.read_text())
+    assert [(r["task"], r["variant"], r["successes"]) for r in out["rows"]] == [
+        ("insert_hdmi", "vision", 4), ("insert_hdmi", "vision_tactile", 3), ("lift_can", "vision", 2)]
+    assert out["note"] == "round 1" and out["setup"] == report["setup"] and out["ablations"] == report["ablations"]
+    assert [(e["task"], e["points"]) for e in out["touch_effects"]] == [("insert_hdmi", -25.0)]
+    capsys.readouterr()
+
+    (tmp_path / "broken.json").write_text('{"rows": ')
+    with pytest.raises(SystemExit, match="--merge .*broken.json: not a readable JSON file"):
+        train_policy_main(["report", "--runs", str(added), "--merge", str(tmp_path / "broken.json"),
+                           "--json", str(tmp_path / "x.json")])
+    (tmp_path / "other.json").write_text('{"per_rollout": []}')
+    with pytest.raises(SystemExit, match="no 'rows' list"):
+        train_policy_main(["report", "--runs", str(added), "--merge", str(tmp_path / "other.json"),
+                           "--json", str(tmp_path / "x.json")])
+    assert not (tmp_path / "x.json").exists()
 
 
 def test_a_run_merges_only_evaluations_made_alike(tmp_path):

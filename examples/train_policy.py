@@ -433,8 +433,12 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "seed": train_s.get("seed", 0), "pose": train_s.get("pose", "absolute"),
             "opening": train_s.get("opening", "absolute"), "history": train_s.get("history", 0),
         })
-    order = {v: k for k, v in enumerate(VARIANTS)}
-    return sorted(rows, key=lambda r: (r["task"], order[r["variant"]], r["seed"]))
+    return sorted(rows, key=row_order)
+
+
+def row_order(row: dict[str, Any]) -> tuple[str, int, int]:
+    """Rows sort by task, then variant in ``VARIANTS`` order, then training seed."""
+    return row["task"], VARIANTS.index(row["variant"]), int(row.get("seed", 0))
 
 
 def recipe(row: dict[str, Any]) -> tuple[str, str, int, float]:
@@ -554,9 +558,7 @@ def merged_rows(earlier: list[dict[str, Any]], new: list[dict[str, Any]]) -> lis
     """An earlier report's rows with ``new`` added; a new row replaces an earlier one of the same run
     (``run_key``), so re-evaluating a run does not count it twice."""
     keys = {run_key(r) for r in new}
-    order = {v: k for k, v in enumerate(VARIANTS)}
-    return sorted([r for r in earlier if run_key(r) not in keys] + new,
-                  key=lambda r: (r["task"], order[r["variant"]], int(r.get("seed", 0))))
+    return sorted([r for r in earlier if run_key(r) not in keys] + new, key=row_order)
 
 
 def read_json_arg(flag: str, path: str) -> dict[str, Any]:

@@ -521,29 +521,39 @@ def chart(pooled: list[dict[str, Any]], path: Path) -> None:
     several = {task for task, _ in groups if sum(t == task for t, _ in groups) > 1}
     labels = [task + (f"\nhistory {rec[2]}, k = {rec[3]:g}" if task in several else "") for task, rec in groups]
     colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
-    fig, ax = plt.subplots(figsize=(2.6 + 2.4 * len(groups), 3.8))
+    per_row = 5  # groups a panel: more tasks wrap onto further panels instead of one unreadably wide chart
+    panels = [list(range(i, min(i + per_row, len(groups)))) for i in range(0, len(groups), per_row)]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(2.6 + 2.4 * min(per_row, len(groups)), 3.8 * len(panels)),
+                             squeeze=False)
     width = 0.26
     present = [v for v in VARIANTS if any(r["variant"] == v for r in pooled)]  # bars centred on their task
-    for v, variant in enumerate(present):
-        for t, (task, rec) in enumerate(groups):
-            row = next((r for r in pooled if r["task"] == task and r["variant"] == variant and recipe(r) == rec), None)
-            if row is None:
-                continue
-            x = t + (v - (len(present) - 1) / 2) * width
-            p, (lo, hi) = row["success_rate"], row["wilson95"]
-            ax.bar(x, 100 * p, width * 0.9, color=colours[variant],
-                   label=variant if variant not in ax.get_legend_handles_labels()[1] else None)
-            ax.errorbar(x, 100 * p, yerr=[[100 * (p - lo)], [100 * (hi - p)]], color="black", capsize=3, lw=1)
-            if len(row["per_seed_success_rate"]) > 1:
-                seeds = row["per_seed_success_rate"]
-                ax.plot([x] * len(seeds), [100 * q for q in seeds], "o", ms=3, mfc="white", mec="black", zorder=3)
-            ax.text(x, 100 * hi + 1.5, f"{row['successes']}/{row['rollouts']}", ha="center", fontsize=7)
-    ax.set_xticks(range(len(groups)), labels, fontsize=8)
-    ax.set_ylabel("success, % (95 % Wilson interval)")
-    ax.set_ylim(0, 105)
-    ax.set_title("ACT-style policy, 50 demonstrations: vision vs touch (dots: training seeds)", fontsize=9)
-    ax.legend(fontsize=8, loc="upper right")
-    fig.tight_layout()
+    for ax, panel in zip(axes[:, 0], panels):
+        for v, variant in enumerate(present):
+            for slot, t in enumerate(panel):
+                task, rec = groups[t]
+                row = next((r for r in pooled if r["task"] == task and r["variant"] == variant and recipe(r) == rec),
+                           None)
+                if row is None:
+                    continue
+                x = slot + (v - (len(present) - 1) / 2) * width
+                p, (lo, hi) = row["success_rate"], row["wilson95"]
+                ax.bar(x, 100 * p, width * 0.9, color=colours[variant],
+                       label=variant if variant not in ax.get_legend_handles_labels()[1] else None)
+                ax.errorbar(x, 100 * p, yerr=[[100 * (p - lo)], [100 * (hi - p)]], color="black", capsize=3, lw=1)
+                if len(row["per_seed_success_rate"]) > 1:
+                    seeds = row["per_seed_success_rate"]
+                    ax.plot([x] * len(seeds), [100 * q for q in seeds], "o", ms=3, mfc="white", mec="black", zorder=3)
+                ax.text(x, 100 * hi + 1.5, f"{row['successes']}/{row['rollouts']}", ha="center", fontsize=7)
+        ax.set_xticks(range(len(panel)), [labels[t] for t in panel], fontsize=8)
+        ax.set_xlim(-0.5, per_row - 0.5 if len(panels) > 1 else len(panel) - 0.5)
+        ax.set_ylabel("success, % (95 % Wilson interval)")
+        ax.set_ylim(0, 108)
+    # one legend for every panel, above them, where no bar can be under it
+    handles = {label: h for ax in axes[:, 0] for h, label in zip(*ax.get_legend_handles_labels())}
+    fig.suptitle("ACT-style policy, 50 demonstrations: vision vs touch (dots: training seeds)", fontsize=9)
+    fig.legend(list(handles.values()), list(handles), fontsize=8, ncol=len(handles), loc="upper center",
+               bbox_to_anchor=(0.5, 1 - 0.3 / (3.8 * len(panels))), frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.55 / (3.8 * len(panels))))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -30,7 +30,7 @@ from act_policy import (CHECKPOINT_ENV, STD_FLOOR, ChunkPolicy, Normalization, P
                         absolute_chunk, chunk_targets, load_checkpoint, masked_l1, quat_mul, save_checkpoint,
                         touch_signals)
 from train_policy import main as train_policy_main  # noqa: E402
-from train_policy import (difference_interval, history_rows, load_demos, make_batch,  # noqa: E402
+from train_policy import (chart, difference_interval, history_rows, load_demos, make_batch,  # noqa: E402
                           merged_evaluation, pooled_rows, touch_effects, train)
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -365,6 +365,23 @@ def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     assert [(r["history"], r["ensemble_k"], r["successes"]) for r in pooled if r["variant"] == "vision"] == [
         (0, 0.01, 30), (25, 0.01, 5), (0, -0.5, 5)]
     assert len(touch_effects(pooled)) == 1
+
+
+def test_the_chart_wraps_many_tasks_onto_panels(tmp_path):
+    """Up to five task groups fit one panel; more wrap onto another (the figure grows taller, not wider)."""
+    from PIL import Image
+
+    def pooled(tasks: int) -> list[dict]:
+        rows = [{"task": f"task{t}", "variant": v, "seed": 0, "rollouts": 10, "successes": 3 + t,
+                 "success_rate": (3 + t) / 10, "unsafe_rate": 0.0, "train_s": 1.0, "eval_s": 1.0}
+                for t in range(tasks) for v in ("vision", "vision_tactile")]
+        return pooled_rows(rows)
+
+    chart(pooled(5), tmp_path / "five.png")
+    chart(pooled(7), tmp_path / "seven.png")
+    with Image.open(tmp_path / "five.png") as five, Image.open(tmp_path / "seven.png") as seven:
+        (w5, h5), (w7, h7) = five.size, seven.size
+    assert w7 == w5 and h7 > 1.8 * h5
 
 
 def test_report_merge_keeps_earlier_rows_and_replaces_a_rerun(tmp_path, capsys):

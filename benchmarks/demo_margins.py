@@ -24,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import FIGURES, RESULTS  # noqa: E402
 
-from univtac_data.storage import Dataset  # noqa: E402
+from univtac_data.storage import Dataset, DatasetError  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -64,6 +63,11 @@ def approach_margin(opening_m: np.ndarray, normal_force_left_n: np.ndarray, norm
     return ApproachMargin(peak_indentation_mm, safe_indentation_mm - peak_indentation_mm, closing)
 
 
+def json_number(value: float | None) -> float | None:
+    """``value``, or None where JSON has no number (fingers that did not move give an infinite tolerance)."""
+    return value if value is not None and np.isfinite(value) else None
+
+
 def dataset_margins(path: Path) -> dict[str, object]:
     dataset = Dataset.open(path)
     if not dataset.episode_ids:
@@ -92,10 +96,11 @@ def dataset_margins(path: Path) -> dict[str, object]:
         "closing_mm_per_step": ({"median": statistics.median(m.closing_mm_per_step for m in approached),  # type: ignore[type-var]
                                  "max": max(m.closing_mm_per_step for m in approached)}  # type: ignore[type-var]
                                 if approached else None),
-        "late_steps_to_unsafe": {"median": statistics.median(late), "min": min(late)} if late else None,
+        "late_steps_to_unsafe": ({"median": json_number(statistics.median(late)), "min": json_number(min(late))}
+                                 if late else None),
         "one_step_late_unsafe": sum(1 for steps in late if steps < 1),
         "two_steps_late_unsafe": sum(1 for steps in late if steps < 2),
-        "per_episode": [{**asdict(m), "late_steps_to_unsafe": m.late_steps_to_unsafe} for m in margins],
+        "per_episode": [{**asdict(m), "late_steps_to_unsafe": json_number(m.late_steps_to_unsafe)} for m in margins],
     }
 
 
@@ -132,24 +137,31 @@ def chart(rows: list[dict[str, object]], path: Path) -> None:
     plt.close(fig)
 
 
+def _steps(value: float | None) -> str:
+    return "no number of" if value is None else f"{value:.2f}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="+", type=Path)
     parser.add_argument("--json", type=Path, default=RESULTS / "demo_margins.json")
     parser.add_argument("--chart", type=Path, default=FIGURES / "demo_margins.png")
     args = parser.parse_args(argv)
-    rows = [dataset_margins(path) for path in args.datasets]
+    try:
+        rows = [dataset_margins(path) for path in args.datasets]
+    except DatasetError as error:  # a missing or damaged dataset: one line naming it, no traceback
+        raise SystemExit(f"demo_margins: {error}") from None
     for row in rows:
         closing = row["closing_mm_per_step"]
         print(f"{row['task']}: peak {row['peak_indentation_mm']['median']:.2f} mm median "  # type: ignore[index]
               f"(max {row['peak_indentation_mm']['max']:.2f}) of {row['safe_indentation_mm']} safe; "  # type: ignore[index]
               + (f"closing {closing['median']:.2f} mm a step before contact; "  # type: ignore[index]
-                 f"{row['late_steps_to_unsafe']['median']:.2f} steps late is unsafe (median; "  # type: ignore[index]
+                 f"{_steps(row['late_steps_to_unsafe']['median'])} steps late is unsafe (median; "  # type: ignore[index]
                  f"under one step in {row['one_step_late_unsafe']}, under two in {row['two_steps_late_unsafe']} "
                  f"of {row['episodes']})"
                  if closing else "every episode starts in contact"))
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+    args.json.write_text(json.dumps({"rows": rows}, indent=1, allow_nan=False) + "\n")
     chart(rows, args.chart)
     print(f"wrote {args.json} and {args.chart}")
     return 0

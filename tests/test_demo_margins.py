@@ -17,7 +17,7 @@ from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from demo_margins import approach_margin, dataset_margins, main  # noqa: E402
+from demo_margins import approach_margin, dataset_margins, json_number, main  # noqa: E402
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -38,6 +38,7 @@ def test_an_episode_that_starts_in_contact_has_no_approach():
     assert margin.closing_mm_per_step is None and margin.late_steps_to_unsafe is None
     still = approach_margin(np.full(4, 0.03), np.array([0, 0, 1, 1.0]), np.array([0, 0, 1, 1.0]), 0.3, 1.5)
     assert still.closing_mm_per_step == 0 and math.isinf(still.late_steps_to_unsafe)
+    assert json_number(still.late_steps_to_unsafe) is None and json_number(1.5) == 1.5  # the JSON stays standard
 
 
 def test_a_recorded_lift_can_episode(tmp_path):
@@ -59,3 +60,9 @@ def test_an_empty_dataset_is_refused(tmp_path):
     DatasetWriter.open(tmp_path / "empty")
     with pytest.raises(SystemExit, match="no episodes"):
         dataset_margins(tmp_path / "empty")
+
+
+def test_a_missing_dataset_is_one_line(tmp_path):
+    with pytest.raises(SystemExit, match="demo_margins: .*nowhere.*no such file"):
+        main([str(tmp_path / "nowhere"), "--json", str(tmp_path / "m.json"), "--chart", str(tmp_path / "m.png")])
+    assert not (tmp_path / "m.json").exists()

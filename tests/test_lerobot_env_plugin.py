@@ -227,6 +227,11 @@ def test_lerobot_eval_command_line_finds_the_env_type():
     assert parsed["type"] == "univtac" and parsed["gym_id"] == "lerobot_env_univtac/GraspClassify-v0"
     assert parsed["steps"] == 1250
     assert parsed["map"]["pixels/tactile_left"] == "observation.images.tactile_left"
+    # the task's limit is a time: at 25 frames a second half as many steps
+    slower = subprocess.run([sys.executable, "-c", script, *args, "--env.fps=25"], capture_output=True, text=True,
+                            timeout=300, env=env)
+    assert slower.returncode == 0, slower.stderr[-2000:]
+    assert json.loads(slower.stdout.strip().splitlines()[-1])["steps"] == 625
 
 
 def test_lerobot_plugin_discovery_imports_the_plugin():

@@ -96,6 +96,22 @@ def test_lift_bottle_fails_without_its_corrections():
     assert sum(o.success for o in without) <= 0.3 * 20
 
 
+def test_put_bottle_expert_at_25_hz_fits_the_time_limit_it_has_at_50_hz():
+    """The swing and the grasps are per 20 ms step, scaled at other rates: at 25 Hz the expert takes about as
+    long in seconds as at 50 Hz and finishes inside the task's 6 s (150 steps), as ``evaluate`` allows."""
+    slow = TaskConfig(cameras=False, rate_hz=25.0)
+    runs = [run_expert(TaskEpisodeSpec("put_bottle_in_shelf", seed, slow), record=False) for seed in range(8)]
+    limit = make_task("put_bottle_in_shelf", slow).step_limit
+    assert limit == 150
+    assert all(o.success and o.safe for o in runs), [(o.seed, o.steps, o.violation) for o in runs]
+    assert max(o.steps for o in runs) < limit - 5, [o.steps for o in runs]
+    at_50 = [run_expert(TaskEpisodeSpec("put_bottle_in_shelf", seed, FAST), record=False) for seed in range(2)]
+    for fast, slow_run in zip(at_50, runs):
+        swing_50, swing_25 = (o.memory["corrections"][0] for o in (fast, slow_run))
+        assert swing_25["steps"] / 25 == pytest.approx(swing_50["steps"] / 50, rel=0.35)
+        assert slow_run.steps / 25 == pytest.approx(fast.steps / 50, rel=0.15)
+
+
 def test_put_bottle_expert_succeeds_on_100_seeds_and_swings_the_bottle_upright(put_bottle):
     _report("put_bottle_in_shelf", put_bottle)
     assert sum(o.success for o in put_bottle) >= 95, [o.seed for o in put_bottle if not o.success]

@@ -161,6 +161,30 @@ def test_gymnasium_environment_passes_the_checker_and_resets_deterministically(n
     env.close()
 
 
+def test_generation_evaluation_and_the_environment_share_one_time_limit(monkeypatch):
+    """``max_steps`` counts 50 Hz steps: at 25 Hz the expert is cut at half as many (the same seconds) when it
+    generates, the environment truncates there, and a dataset records that limit."""
+    from univtac_data.envs import TaskEnv
+    from univtac_data.envs.evaluate import step_limit
+    from univtac_data.generators.tasks.base import time_limited_steps
+    from univtac_data.generators.tasks.lift_can import LiftCan
+
+    assert [time_limited_steps(300, hz) for hz in (50.0, 25.0, 10.0, 100.0)] == [300, 150, 60, 600]
+    monkeypatch.setattr(LiftCan, "max_steps", 40)  # the expert needs more: it is cut at the limit
+    slow = TaskConfig(cameras=False, rate_hz=25.0)
+    outcome = run_expert(TaskEpisodeSpec("lift_can", 3, slow))
+    assert outcome.steps == 20 and not outcome.success
+    assert outcome.episode is not None and outcome.episode.meta.extra["task"]["max_steps"] == 20
+    env = TaskEnv("lift_can", cameras=False, rate_hz=25.0)
+    try:
+        assert step_limit(env) == env.task.step_limit == 20
+        env.reset(seed=3)
+        truncated = [env.step(env.session.last_action.astype(np.float32))[3] for _ in range(20)]
+        assert truncated == [False] * 19 + [True]
+    finally:
+        env.close()
+
+
 def test_delta_actions_move_the_target():
     import univtac_data.envs  # noqa: F401
 

@@ -63,6 +63,13 @@ class TaskConfig:
         return round(ticks)
 
 
+def time_limited_steps(max_steps: int, rate_hz: float) -> int:
+    """A task's step limit at ``rate_hz``: ``max_steps`` counts steps at the tasks' default 50 Hz, so the limit
+    is a time (``max_steps / 50`` s) and a rollout at ``rate_hz`` gets ``max_steps * rate_hz / 50`` steps. One
+    rule for generation, evaluation and the environments: a demonstration kept at 25 Hz fits an evaluation."""
+    return max(1, round(max_steps * rate_hz / TaskConfig.rate_hz))
+
+
 @dataclass(frozen=True)
 class Step:
     """One expert action: the absolute target (8,) and the primitive that issued it."""
@@ -106,7 +113,7 @@ class Task(ABC):
 
     name: ClassVar[str]  # registry key, e.g. 'lift_can'
     gym_id: ClassVar[str]  # e.g. 'univtac/LiftCan-v0'
-    max_steps: ClassVar[int]  # policy steps before a rollout is cut off
+    max_steps: ClassVar[int]  # 50 Hz policy steps before a rollout is cut off (a time limit: step_limit())
     primitive_names: ClassVar[list[str]]
     max_in_hand_slip_mm: ClassVar[float] = 5.0  # safety: a held object may move this far in the hand, mm
     # primitives that let the held object slip on the gel on purpose (a controlled slip, e.g. a swing in a
@@ -119,6 +126,11 @@ class Task(ABC):
     def __init__(self, config: TaskConfig, profile: SensorProfile) -> None:
         self.config = config
         self.profile = profile
+
+    @property
+    def step_limit(self) -> int:
+        """Policy steps before a rollout is cut off at this task's rate (``time_limited_steps``)."""
+        return time_limited_steps(self.max_steps, self.config.rate_hz)
 
     # --- scene -------------------------------------------------------------------------------------
     @abstractmethod
@@ -230,4 +242,5 @@ def yaw_quat(yaw_rad: float) -> np.ndarray:
     return np.array([math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)])
 
 
-__all__ = ["EVAL_SEED_BASE", "ExpertContext", "SafetyCheck", "Step", "Task", "TaskConfig", "TaskState", "yaw_quat"]
+__all__ = ["EVAL_SEED_BASE", "ExpertContext", "SafetyCheck", "Step", "Task", "TaskConfig", "TaskState", "time_limited_steps",
+           "yaw_quat"]

@@ -65,7 +65,8 @@ class ExpertOutcome:
 
 
 def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool = True) -> ExpertOutcome:
-    """Run the task's expert from ``spec.seed`` until its script ends or the step limit; record it if asked.
+    """Run the task's expert from ``spec.seed`` until its script ends or the step limit (a time limit, the
+    same as ``evaluate``'s: ``Task.step_limit``); record it if asked.
     ``corrections=False`` runs the expert with its corrections switched off (to measure what they are worth)."""
     task = make_task(spec.task, spec.config)
     session = TaskSession(task, record=record)
@@ -74,7 +75,7 @@ def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool 
         ctx = ExpertContext(session, session.rng)
         ctx.corrections_enabled = corrections
         for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
+            if session.steps >= task.step_limit:
                 break
             state = session.step(step.action, step.primitive)
         success = task.success(state)
@@ -108,7 +109,7 @@ def _episode(spec: TaskEpisodeSpec, session: TaskSession, outcome: ExpertOutcome
     extra = {"task": {"layout": _jsonable(session.layout), "steps": session.steps, "safe": outcome.safe,
                       "violation": outcome.violation, "max_indentation_mm": session.max_indentation_mm,
                       "max_in_hand_slip_mm": session.max_in_hand_slip_mm, "memory": outcome.memory,
-                      "max_steps": session.task.max_steps}}
+                      "max_steps": session.task.step_limit}}
     return build_episode(
         sim.frames, sim.pixel_arrays(), episode_id=spec.episode_id, kind="task", name=spec.task,
         sensor=spec.config.sensor, seed=spec.seed, generator=GeneratorInfo(name=GENERATOR_NAME, version=__version__,

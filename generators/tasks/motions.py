@@ -77,6 +77,9 @@ def open_to(ctx: ExpertContext, width_m: float = MAX_OPENING_M, speed_m_s: float
         yield ctx.step(primitive, action)
 
 
+LAW_STEP_S = 0.02  # the step GraspLaw's per-step numbers are for (50 Hz)
+
+
 @dataclass(frozen=True)
 class GraspLaw:
     """The paper's closed-loop grasp on the gripper opening (UniVTAC's speeds): close fast while both pads
@@ -88,7 +91,11 @@ class GraspLaw:
     v_fast_m_s: float = 0.06
     v_slow_m_s: float = 0.006
     approach_margin_mm: float = 0.5  # the fast phase ends this far from contact
-    gain_per_step: float = 0.6  # fraction of the depth error closed per step in contact (the servo lags a little)
+    # in contact, per 20 ms step (50 Hz; close_until scales both to the step it runs at, so that a grasp at 25 Hz
+    # takes as long as at 50 Hz): the fraction of the depth error closed (the servo lags a little) and the
+    # least closing, m (the gel's last tenths of a millimetre converge slowly)
+    gain_per_step: float = 0.6
+    min_closing_m: float = 2e-5
     max_lead_m: float = 0.0015
     timeout_s: float = 2.0
 
@@ -108,6 +115,8 @@ def held_opening_m(profile: SensorProfile, width_m: float) -> float:
 def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> Iterator[Step]:
     """Close on an object until both pads reach ``law.threshold_mm``; sets ``ctx.memory['grasped']``."""
     ctx.memory["grasped"] = False
+    per = ctx.dt_s / LAW_STEP_S  # this rate's step in 20 ms steps (exactly 1 at 50 Hz)
+    gain, least = min(0.9, law.gain_per_step * per), law.min_closing_m * per
     for _ in range(max(1, round(law.timeout_s / ctx.dt_s))):
         gaps = ctx.gap_mm()
         depth = {pad: max(0.0, -gap) for pad, gap in gaps.items()}
@@ -118,7 +127,7 @@ def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> 
             closing = law.v_fast_m_s * ctx.dt_s
         else:
             error_m = (law.threshold_mm - min(depth.values())) / 1000.0
-            closing = min(law.v_slow_m_s * ctx.dt_s, max(law.gain_per_step * error_m, 2e-5)) if min(gaps.values()) <= 0 \
+            closing = min(law.v_slow_m_s * ctx.dt_s, max(gain * error_m, least)) if min(gaps.values()) <= 0 \
                 else law.v_slow_m_s * ctx.dt_s
         action = ctx.target.copy()
         # never more than max_lead_m ahead of the fingers: the servo's squeeze stays what the law asked for

@@ -21,7 +21,8 @@ Randomisation (seeded)
 Expert (closed loop; the signal behind each correction is recorded in ``memory['corrections']``)
     descend over the seen bottle (top-down, fingers closing along world y); tactile grasp to 0.9 mm (0.54 mm on
     the GF225 and Xense WS: ``GRIP_DEPTH_FACTOR``); lift while tilting the hand about the closing axis.
-    **Swing upright (controlled slip)**: each step, the pads' contact strips give the bottle's axis in the
+    **Swing upright (controlled slip)**, in 20 ms steps (at another rate the per-step numbers below are scaled
+    to the same speeds and times): each step, the pads' contact strips give the bottle's axis in the
     gripper frame (``bottle.in_hand_from_touch``) and, with the hand's orientation, its tilt from vertical; while
     it turns by less than 1.5 deg a step, open by 0.2 mm while the shallower pad presses more than 0.3 mm and by
     0.03 mm below that; when it turns faster than 3 deg a step or the press falls below 0.09 mm (the weight
@@ -97,7 +98,8 @@ RELEASE_SPEED_M_S = 0.3
 # "tight"), still 0.6 mm inside the Mini's 1.5 mm safe limit (0.54 mm against 0.8 on the GF225 and Xense WS)
 GRIP_DEPTH_FACTOR = 1.8
 REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright
-# the swing (controlled slip), per policy step
+# the swing (controlled slip), per 20 ms policy step (50 Hz); at other rates scaled to the same speeds and times
+SWING_STEP_S = 0.02
 PIVOT_DONE_RAD = math.radians(5.0)
 PIVOT_MOVING_RAD = math.radians(0.3)  # turning at least this much a step: leave the grip as it is
 PIVOT_FAST_STEP_M = 0.0002  # opening change a step while the pads still press deeper than PIVOT_FAST_ABOVE_MM, m
@@ -226,8 +228,12 @@ class PutBottleInShelf(Task):
         start, _ = self._tilt_from_touch(ctx)
         start_width = float(ctx.target[7])
         previous, slow, steps = start, 0, 0
+        per = ctx.dt_s / SWING_STEP_S  # this rate's step in 50 Hz steps (1 at 50 Hz, 2 at 25 Hz)
+        moving, wanted, too_fast, creep = (per * r for r in (PIVOT_MOVING_RAD, PIVOT_RATE_RAD, PIVOT_FAST_RATE_RAD,
+                                                             PIVOT_CREEP_RAD))
+        stall_steps, max_steps = math.ceil(PIVOT_STALL_STEPS / per), math.ceil(PIVOT_MAX_STEPS / per)
         tilt = start
-        while steps < PIVOT_MAX_STEPS:
+        while steps < max_steps:
             tilt, _ = self._tilt_from_touch(ctx)
             if tilt < PIVOT_DONE_RAD:
                 break
@@ -235,17 +241,17 @@ class PutBottleInShelf(Task):
             depth = min(ctx.indentation_mm().values())
             # as loose as the weight allows and hardly turning: gravity's torque no longer beats the friction
             loosest = depth < PIVOT_MIN_DEPTH_MM + PIVOT_STALL_DEPTH_MM
-            slow = slow + 1 if rate < PIVOT_CREEP_RAD and loosest else 0
-            if slow >= PIVOT_STALL_STEPS:
+            slow = slow + 1 if rate < creep and loosest else 0
+            if slow >= stall_steps:
                 break
-            if rate < -PIVOT_MOVING_RAD and tilt < math.radians(15):
+            if rate < -moving and tilt < math.radians(15):
                 break  # swung through upright: grip where it is
             previous = tilt
             action = ctx.target.copy()
-            if depth < PIVOT_MIN_DEPTH_MM or rate > PIVOT_FAST_RATE_RAD:
-                action[7] -= PIVOT_STEP_M
-            elif rate < PIVOT_RATE_RAD:
-                action[7] += PIVOT_FAST_STEP_M if depth > PIVOT_FAST_ABOVE_MM else PIVOT_STEP_M
+            if depth < PIVOT_MIN_DEPTH_MM or rate > too_fast:
+                action[7] -= per * PIVOT_STEP_M
+            elif rate < wanted:
+                action[7] += per * (PIVOT_FAST_STEP_M if depth > PIVOT_FAST_ABOVE_MM else PIVOT_STEP_M)
             steps += 1
             yield ctx.step("swing", action)
         end, _ = self._tilt_from_touch(ctx)

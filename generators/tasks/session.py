@@ -89,7 +89,7 @@ class TaskSession:
         model = mujoco.MjModel.from_xml_string(self.task.scene_xml(self.layout))
         model.opt.timestep = self.config.timestep_s
         sim_config = SimConfig(record_rate_hz=None, control_period_steps=self.config.control_period_steps,
-                               contact_method=self.config.contact_method, frame_capacity=self.task.max_steps + 1)
+                               contact_method=self.config.contact_method, frame_capacity=self.task.step_limit + 1)
         self.sim = GripperSim(model, get_sensor(self.config.sensor), {p: self.task.pad_geoms() for p in PADS},
                               self.task.objects(), self.task.primitive_names, sim_config,
                               cameras=self.task.cameras(), textures=self.task.textures(self.layout))

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from univtac_data.envs.policies import ExpertPolicy, Policy, RandomPolicy, ReplayPolicy, ZeroPolicy, load_replay, user_policy
 from univtac_data.envs.task_env import TaskEnv
-from univtac_data.generators.tasks.base import EVAL_SEED_BASE, TaskConfig
+from univtac_data.generators.tasks.base import EVAL_SEED_BASE
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -104,8 +104,9 @@ def _checked_action(action: Any) -> np.ndarray:
 
 def step_limit(env: TaskEnv) -> int:
     """The task's step limit as a time limit: ``max_steps`` is counted at the tasks' 50 Hz, so a rollout at
-    ``rate_hz`` gets ``max_steps * rate_hz / 50`` steps (the same seconds)."""
-    return max(1, round(env.task.max_steps * env.config.rate_hz / TaskConfig.rate_hz))
+    ``rate_hz`` gets ``max_steps * rate_hz / 50`` steps (the same seconds; ``Task.step_limit``, which
+    ``generate`` keeps its demonstrations within too)."""
+    return env.task.step_limit
 
 
 def rollout(env: TaskEnv, policy: Policy, seed: int, video: Any | None = None) -> Rollout:

@@ -17,8 +17,10 @@ Rate
     ``rate_hz`` policy steps a second (default 50 Hz; one step must be a whole number of 2 ms control ticks).
 Reward, termination
     reward 1.0 on the step success first holds, else 0.0; ``terminated`` when the task succeeds or a tactile
-    safety rule is broken (``info["safety"]`` says which); ``truncated`` by the TimeLimit at the task's step
-    limit. ``info["is_success"]``: success now; ``info["safety"]``: {"ok", "reason", "max_indentation_mm",
+    safety rule is broken (``info["safety"]`` says which); ``truncated`` at the task's step limit, which is a
+    time limit (``Task.step_limit``: ``max_steps`` at 50 Hz, 150 steps for 300 at 25 Hz), the same that
+    ``generate`` and ``evaluate`` use. ``gym.make`` also wraps the registration's TimeLimit of ``max_steps``
+    steps, which is the same at 50 Hz and longer at lower rates; above 50 Hz pass ``max_episode_steps``. ``info["is_success"]``: success now; ``info["safety"]``: {"ok", "reason", "max_indentation_mm",
     "max_in_hand_slip_mm"}.
 """
 
@@ -104,8 +106,8 @@ class TaskEnv(gym.Env[dict[str, Any], np.ndarray]):
         reward = 1.0 if success and not self._succeeded else 0.0
         self._succeeded |= success
         safe = self.session.safety_log[-1].ok
-        # truncation is the TimeLimit wrapper's (max_episode_steps at registration)
-        return self._observation(), reward, bool(success or not safe), False, self._info(success)
+        truncated = self.session.steps >= self.task.step_limit
+        return self._observation(), reward, bool(success or not safe), truncated, self._info(success)
 
     def render(self) -> np.ndarray:
         """(H, W, 3) uint8: the head camera (or, without cameras, the left tactile image)."""

@@ -9,7 +9,7 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_env_univtac.env import NAMESPACE, gym_id
 from lerobot_env_univtac.features import env_features, features_map
-from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig, time_limited_steps
 from univtac_data.generators.tasks.registry import task_class
 
 
@@ -22,7 +22,7 @@ class UnivtacEnv(EnvConfig):
 
     task: str | None = "lift_can"
     fps: int = 50
-    episode_length: int | None = None  # policy steps before truncation; None: the task's own limit
+    episode_length: int | None = None  # policy steps before truncation; None: the task's own (time) limit at fps
     sensor: str = "gelsight_mini"
     contact: str = "geometric"  # the tactile contact model of the images: geometric or elastic
     cameras: bool = True  # the head and wrist cameras (False: tactile images and state only)
@@ -35,7 +35,7 @@ class UnivtacEnv(EnvConfig):
         if self.task is None:
             raise ValueError("--env.task is required (e.g. lift_can)")
         if self.episode_length is None:
-            self.episode_length = task_class(self.task).max_steps
+            self.episode_length = time_limited_steps(task_class(self.task).max_steps, float(self.fps))
         specs = env_features(self.task, self._task_config())
         self.features = {f.env_key: PolicyFeature(type=FeatureType[f.kind], shape=f.shape) for f in specs}
         self.features_map = features_map(specs)

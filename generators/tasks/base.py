@@ -113,7 +113,7 @@ class Task(ABC):
 
     name: ClassVar[str]  # registry key, e.g. 'lift_can'
     gym_id: ClassVar[str]  # e.g. 'univtac/LiftCan-v0'
-    max_steps: ClassVar[int]  # 50 Hz policy steps before a rollout is cut off (a time limit: step_limit())
+    max_steps: ClassVar[int]  # 50 Hz policy steps before a rollout is cut off (a time limit: ``step_limit``)
     primitive_names: ClassVar[list[str]]
     max_in_hand_slip_mm: ClassVar[float] = 5.0  # safety: a held object may move this far in the hand, mm
     # primitives that let the held object slip on the gel on purpose (a controlled slip, e.g. a swing in a

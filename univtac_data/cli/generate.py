@@ -75,7 +75,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     task.add_argument("--contact", choices=("geometric", "elastic"), default="geometric",
                       help="tactile contact model of the images (default geometric)")
     task.add_argument("--rate", type=float, default=50.0,
-                      help="policy steps and recorded frames per second; a whole number of 2 ms ticks (default 50)")
+                      help="policy steps and recorded frames per second; a whole number of 2 ms ticks (default 50); "
+                           "the task's step limit is a time limit (max_steps x RATE / 50), as in evaluate")
     task.add_argument("--seed", type=int, default=0, help="first seed tried; seeds go up by one (default 0)")
     task.add_argument("--camera-size", type=camera_size, default=(480, 270), metavar="WxH", help="head and wrist camera size (default 480x270)")
     task.add_argument("--no-cameras", action="store_true", help="record no camera images (much faster)")

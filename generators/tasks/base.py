@@ -195,6 +195,9 @@ class ExpertContext:
         self._session = session
         self.rng = rng
         self.dt_s = 1.0 / session.config.rate_hz  # one policy step, s
+        # one policy step in steps of the tasks' default 50 Hz (1 at 50 Hz, 2 at 25 Hz): experts whose feedback
+        # is stated per 20 ms step scale it by this, so that they keep their timing at any rate
+        self.step_scale = self.dt_s / (1.0 / TaskConfig.rate_hz)
         self.layout: dict[str, Any] = session.layout
         self.target = session.last_action.copy()
         self.memory: dict[str, Any] = {"corrections": []}

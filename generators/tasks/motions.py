@@ -77,9 +77,6 @@ def open_to(ctx: ExpertContext, width_m: float = MAX_OPENING_M, speed_m_s: float
         yield ctx.step(primitive, action)
 
 
-LAW_STEP_S = 0.02  # the step GraspLaw's per-step numbers are for (50 Hz)
-
-
 @dataclass(frozen=True)
 class GraspLaw:
     """The paper's closed-loop grasp on the gripper opening (UniVTAC's speeds): close fast while both pads
@@ -91,7 +88,7 @@ class GraspLaw:
     v_fast_m_s: float = 0.06
     v_slow_m_s: float = 0.006
     approach_margin_mm: float = 0.5  # the fast phase ends this far from contact
-    # in contact, per 20 ms step (50 Hz; close_until scales both to the step it runs at, so that a grasp at 25 Hz
+    # in contact, per 20 ms step (50 Hz; close_until scales both by ``ctx.step_scale``, so that a grasp at 25 Hz
     # takes as long as at 50 Hz): the fraction of the depth error closed (the servo lags a little) and the
     # least closing, m (the gel's last tenths of a millimetre converge slowly)
     gain_per_step: float = 0.6
@@ -115,8 +112,7 @@ def held_opening_m(profile: SensorProfile, width_m: float) -> float:
 def close_until(ctx: ExpertContext, law: GraspLaw, primitive: str = "grasp") -> Iterator[Step]:
     """Close on an object until both pads reach ``law.threshold_mm``; sets ``ctx.memory['grasped']``."""
     ctx.memory["grasped"] = False
-    per = ctx.dt_s / LAW_STEP_S  # this rate's step in 20 ms steps (exactly 1 at 50 Hz)
-    gain, least = min(0.9, law.gain_per_step * per), law.min_closing_m * per
+    gain, least = min(0.9, law.gain_per_step * ctx.step_scale), law.min_closing_m * ctx.step_scale
     for _ in range(max(1, round(law.timeout_s / ctx.dt_s))):
         gaps = ctx.gap_mm()
         depth = {pad: max(0.0, -gap) for pad, gap in gaps.items()}

@@ -98,8 +98,7 @@ RELEASE_SPEED_M_S = 0.3
 # "tight"), still 0.6 mm inside the Mini's 1.5 mm safe limit (0.54 mm against 0.8 on the GF225 and Xense WS)
 GRIP_DEPTH_FACTOR = 1.8
 REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright
-# the swing (controlled slip), per 20 ms policy step (50 Hz); at other rates scaled to the same speeds and times
-SWING_STEP_S = 0.02
+# the swing (controlled slip), per 20 ms policy step (50 Hz); at other rates scaled by ctx.step_scale
 PIVOT_DONE_RAD = math.radians(5.0)
 PIVOT_MOVING_RAD = math.radians(0.3)  # turning at least this much a step: leave the grip as it is
 PIVOT_FAST_STEP_M = 0.0002  # opening change a step while the pads still press deeper than PIVOT_FAST_ABOVE_MM, m
@@ -228,7 +227,7 @@ class PutBottleInShelf(Task):
         start, _ = self._tilt_from_touch(ctx)
         start_width = float(ctx.target[7])
         previous, slow, steps = start, 0, 0
-        per = ctx.dt_s / SWING_STEP_S  # this rate's step in 50 Hz steps (1 at 50 Hz, 2 at 25 Hz)
+        per = ctx.step_scale
         moving, wanted, too_fast, creep = (per * r for r in (PIVOT_MOVING_RAD, PIVOT_RATE_RAD, PIVOT_FAST_RATE_RAD,
                                                              PIVOT_CREEP_RAD))
         stall_steps, max_steps = math.ceil(PIVOT_STALL_STEPS / per), math.ceil(PIVOT_MAX_STEPS / per)

@@ -117,7 +117,6 @@ def test_put_bottle_expert_succeeds_on_100_seeds_and_swings_the_bottle_upright(p
     assert sum(o.success for o in put_bottle) >= 95, [o.seed for o in put_bottle if not o.success]
     assert all(o.safe for o in put_bottle), [(o.seed, o.violation) for o in put_bottle if not o.safe]
     assert max(o.steps for o in put_bottle) < make_task("put_bottle_in_shelf", FAST).max_steps
-    task = make_task("put_bottle_in_shelf", FAST)
     for o in put_bottle:
         swing, place = o.memory["corrections"][:2]
         assert swing["what"] == "swing upright" and place["what"] == "place from the in-hand pose"

@@ -247,6 +247,7 @@ class InsertTube(Task):
         shear = PadShear(ctx)
         points = [np.zeros(2)] + search_ring()
         ctx.memory.update(attempts=0, inside=False)
+        blocked_by = 0.0  # the last probe's axial shear, mm
         for k, step in enumerate(points):
             if k > 0:
                 if not (self.corrections and ctx.corrections_enabled):

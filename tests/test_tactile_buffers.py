@@ -160,6 +160,22 @@ def test_the_geometric_box_holds_the_whole_deformation(shape: str) -> None:
     np.testing.assert_array_equal(_to_micrometres(result.depth_mm, result.box), _to_micrometres(result.depth_mm))
 
 
+@pytest.mark.parametrize("shape", ["sphere", "cross", "punch"])
+def test_images_and_micrometres_written_into_a_used_buffer_equal_fresh_ones(shape: str) -> None:
+    """A buffer that held another frame (here: noise) is overwritten everywhere: inside the deformed window by
+    the shading and the conversion, outside it by the background and zeros."""
+    grid = sensor_grid(GF225, 1)
+    result = solve_contact(demo_gap(GF225, shape), grid, GF225.material, ContactConfig(method="geometric"))
+    flat = np.zeros(grid.shape)
+    rng = np.random.default_rng(0)
+    for depth, box in ((result.depth_mm, result.box), (flat, None)):
+        used_rgb = rng.integers(0, 256, (*grid.shape, 3), dtype=np.uint8)
+        used_um = rng.integers(0, 65536, grid.shape, dtype=np.uint16)
+        np.testing.assert_array_equal(render_shaded(depth, GF225, deformed_box=box, out=used_rgb),
+                                      render_shaded(depth, GF225))
+        np.testing.assert_array_equal(_to_micrometres(depth, box, used_um), _to_micrometres(depth))
+
+
 def test_no_geometric_contact_gives_an_empty_box() -> None:
     grid = sensor_grid(GF225, 1)
     result = solve_contact(np.full(grid.shape, 1.0), grid, GF225.material, ContactConfig(method="geometric"))

@@ -219,38 +219,55 @@ def _contact_pass(gap: np.ndarray, runs: np.ndarray, piece: np.ndarray, deepest:
         i, k = runs[0, r], piece[r]
         level = fraction * deepest[k]
         half = 0.5 * deepest[k]
+        # the piece's sums in locals for the run (a run is one piece's): the same additions in the same order
+        # as on the arrays, without a store and a reload a pixel
+        n_cells, s_h, s_root, s_rim, n_rim_sides = count[k], sum_h[k], sum_root[k], rim_sum[k], rim_count[k]
+        row, mask_row, depth_row, pressure_row = gap[i], mask[i], depth[i], pressure[i]
+        has_up, has_down = i > 0, i + 1 < h
+        up_row = gap[i - 1] if has_up else row
+        down_row = gap[i + 1] if has_down else row
         for j in range(runs[1, r], runs[2, r]):
-            o = -gap[i, j]
+            o = -row[j]
             if o <= level:
                 continue
-            count[k] += 1.0
+            n_cells += 1.0
             above = o - half
             root = 0.0
             if above > 0.0:
-                sum_h[k] += above
+                s_h += above
                 root = np.sqrt(above)
-                sum_root[k] += root
-            mask[i, j] = True
-            depth[i, j] = o
-            pressure[i, j] = root
-            # the rim's level, across each side out of contact: where the object goes on beyond the contact (its
-            # overlap there is positive) the surface crosses fraction d between the two pixels; where it ends (a
-            # sharp edge, as a punch's, or the image's border), the gel is held at this pixel's overlap. A
-            # 4-neighbour in overlap belongs to this pixel's piece.
+                s_root += root
+            mask_row[j] = True
+            depth_row[j] = o
+            pressure_row[j] = root
+            # the rim's level, across each side out of contact (up, down, left, right): where the object goes on
+            # beyond the contact (its overlap there is positive) the surface crosses fraction d between the two
+            # pixels; where it ends (a sharp edge, as a punch's, or the image's border), the gel is held at this
+            # pixel's overlap. A 4-neighbour in overlap belongs to this pixel's piece.
             on_rim = False
-            for p, q in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
-                if 0 <= p < h and 0 <= q < w:
-                    outside_o = -gap[p, q]
+            for side in range(4):
+                if side == 0:
+                    inside, outside_o = has_up, -up_row[j]
+                elif side == 1:
+                    inside, outside_o = has_down, -down_row[j]
+                elif side == 2:
+                    inside = j > 0
+                    outside_o = -row[j - 1] if inside else 0.0
+                else:
+                    inside = j + 1 < w
+                    outside_o = -row[j + 1] if inside else 0.0
+                if inside:
                     if outside_o > level:
                         continue
                     on_rim = True
-                    rim_sum[k] += level if outside_o > 0.0 else o
+                    s_rim += level if outside_o > 0.0 else o
                 else:
-                    rim_sum[k] += o
-                rim_count[k] += 1.0
+                    s_rim += o
+                n_rim_sides += 1.0
             if on_rim:
                 rim_pixels[0, n_rim], rim_pixels[1, n_rim], rim_pixels[2, n_rim] = i, j, k
                 n_rim += 1
+        count[k], sum_h[k], sum_root[k], rim_sum[k], rim_count[k] = n_cells, s_h, s_root, s_rim, n_rim_sides
     return count, sum_h, sum_root, rim_sum, rim_count, rim_pixels[:, :n_rim]
 
 
@@ -297,11 +314,17 @@ def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, runs: np.ndarray,
     for r in range(runs.shape[1]):
         gi, p = runs[0, r], run_piece[r]
         scale = pressure_scale[p]
-        mask_row, pressure_row = mask[gi], pressure[gi]
+        mask_row, pressure_row, piece_row = mask[gi], pressure[gi], piece[(gi - w0) // k]
+        # block column and the pixel column where the next block begins: no division a pixel
+        b = (runs[1, r] - v0) // k
+        next_block = v0 + (b + 1) * k
         for gj in range(runs[1, r], runs[2, r]):
+            if gj == next_block:
+                b += 1
+                next_block += k
             if mask_row[gj]:
                 pressure_row[gj] *= scale
-                piece[(gi - w0) // k, (gj - v0) // k] = p
+                piece_row[b] = p
     for r in range(rim_pixels.shape[1]):  # rim pixels seed their blocks: each block keeps the one nearest its centre
         gi, gj = rim_pixels[0, r], rim_pixels[1, r]
         a, b = (gi - w0) // k, (gj - v0) // k
@@ -362,12 +385,9 @@ def _fill(gap: np.ndarray, w0: int, w1: int, v0: int, v1: int, runs: np.ndarray,
         for c in range(cw):
             blended[c] = up[c] + (down[c] - up[c]) * ty
         gi = w0 + i
-        depth_row, mask_row, gap_row = depth[gi], mask[gi], gap[gi]
+        depth_row, mask_row, gap_row = depth[gi, v0:v1], mask[gi, v0:v1], gap[gi, v0:v1]
         for j in range(w):
-            gj = v0 + j
-            if mask_row[gj]:
-                continue
             a = col_lo[j]
             left = blended[a]
-            u = left + (blended[a + hi_c] - left) * col_t[j]
-            depth_row[gj] = max(u, -gap_row[gj], 0.0)
+            u = max(left + (blended[a + hi_c] - left) * col_t[j], -gap_row[j], 0.0)
+            depth_row[j] = depth_row[j] if mask_row[j] else u

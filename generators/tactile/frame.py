@@ -165,13 +165,19 @@ def _to_micrometres(depth_mm: np.ndarray, box: tuple[slice, slice] | None = None
     ``box``: (rows, cols) outside which the depth is zero, if known."""
     if out is None:
         out = np.zeros(depth_mm.shape, np.uint16)
+        fresh = True
     else:
-        out[...] = 0
-    # zero depth is 0 um: only the deformed box is converted
+        fresh = False
+    # zero depth is 0 um: only the deformed box is converted, and only the rest of a given buffer zeroed
     win = _nonzero_box(depth_mm) if box is None else box
-    if win is not None:
-        (r0, r1), (c0, c1) = win[0].indices(depth_mm.shape[0])[:2], win[1].indices(depth_mm.shape[1])[:2]
-        _micrometres_kernel(depth_mm, r0, r1, c0, c1, out)
+    if win is None:
+        if not fresh:
+            out[...] = 0
+        return out
+    (r0, r1), (c0, c1) = win[0].indices(depth_mm.shape[0])[:2], win[1].indices(depth_mm.shape[1])[:2]
+    if not fresh:
+        out[:r0], out[r1:], out[r0:r1, :c0], out[r0:r1, c1:] = 0, 0, 0, 0
+    _micrometres_kernel(depth_mm, r0, r1, c0, c1, out)
     return out
 
 

@@ -95,6 +95,7 @@ def _shade_kernel(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dx:
     gx, gy = np.zeros(w, np.float32), np.empty(w, np.float32)
     inv, nx, ny = np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.float32)
     s0, s1, s2 = np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.float32)
+    mixed = np.empty(3 * w, np.float32)
     for i in range(r0, r1):
         up, down = max(i - 1, r0), min(i + 1, r1 - 1)
         scale_y = half_dy if down - up == 2 else (inv_dy if down > up else np.float32(0.0))
@@ -124,11 +125,15 @@ def _shade_kernel(depth: np.ndarray, r0: int, r1: int, c0: int, c1: int, inv_dx:
                 s1[j] += g1 * lam
                 s2[j] += g2 * lam
         if write_image:
-            image_row, background_row = image[i, c0:c1], background[i, c0:c1]
+            # interleave the three channels, then one contiguous pass over the row's 3 w values (the channel-
+            # strided pass did not vectorise)
             for j in range(w):
-                image_row[j, 0] = np.uint8(min(max(np.rint(background_row[j, 0] + s0[j]), np.float32(0.0)), np.float32(255.0)))
-                image_row[j, 1] = np.uint8(min(max(np.rint(background_row[j, 1] + s1[j]), np.float32(0.0)), np.float32(255.0)))
-                image_row[j, 2] = np.uint8(min(max(np.rint(background_row[j, 2] + s2[j]), np.float32(0.0)), np.float32(255.0)))
+                mixed[3 * j] = s0[j]
+                mixed[3 * j + 1] = s1[j]
+                mixed[3 * j + 2] = s2[j]
+            image_flat, background_flat = image[i, c0:c1].reshape(3 * w), background[i, c0:c1].reshape(3 * w)
+            for m in range(3 * w):
+                image_flat[m] = np.uint8(min(max(np.rint(background_flat[m] + mixed[m]), np.float32(0.0)), np.float32(255.0)))
         else:
             shade_row = shade[i - r0]
             for j in range(w):
@@ -159,31 +164,63 @@ def render_shaded(
     then searches only that box for the deformed pixels). ``out``: (H, W, 3) uint8 to write into and return.
     """
     h, w = depth_mm.shape
-    search = deformed_box if deformed_box is not None else (slice(0, h), slice(0, w))
-    deformed = depth_mm[search] > config.depth_floor_mm
-    rows = np.flatnonzero(deformed.any(axis=1))
+    (s0, s1), (t0, t1) = ((0, h), (0, w)) if deformed_box is None else \
+        (deformed_box[0].indices(h)[:2], deformed_box[1].indices(w)[:2])
+    found = _deformed_span(depth_mm, s0, s1, t0, t1, config.depth_floor_mm)
     win: tuple[slice, slice] | None = None
-    if rows.size:
-        cols = np.flatnonzero(deformed[rows[0] : rows[-1] + 1].any(axis=0))
-        r0, c0 = search[0].start or 0, search[1].start or 0
-        win = (slice(max(r0 + rows[0] - 2, 0), min(r0 + rows[-1] + 3, h)),
-               slice(max(c0 + cols[0] - 2, 0), min(c0 + cols[-1] + 3, w)))
+    if found[0] >= 0:
+        win = (slice(max(found[0] - 2, 0), min(found[1] + 3, h)), slice(max(found[2] - 2, 0), min(found[3] + 3, w)))
     if out is None:
         out = np.empty((h, w, 3), np.uint8)
     elif out.shape != (h, w, 3) or out.dtype != np.uint8:
         raise ValueError(f"out must be ({h}, {w}, 3) uint8 (got {out.shape} {out.dtype})")
     if noise_seed is None:
-        # only the deformed window differs from the cached background
-        out[...] = _background_uint8(profile)
-        if win is not None:
-            _shade_window(depth_mm, win, profile, config.gain, _background_single(profile),
-                          np.zeros((0, 0, 3), np.float32), out)
+        # only the deformed window differs from the cached background: the shading writes the window, the
+        # background the rest (copying it everywhere first wrote the window twice)
+        background = _background_uint8(profile)
+        if win is None:
+            out[...] = background
+            return out
+        (r0, r1), (c0, c1) = (win[0].start, win[0].stop), (win[1].start, win[1].stop)
+        out[:r0], out[r1:] = background[:r0], background[r1:]
+        out[r0:r1, :c0], out[r0:r1, c1:] = background[r0:r1, :c0], background[r0:r1, c1:]
+        _shade_window(depth_mm, win, profile, config.gain, _background_single(profile),
+                      np.zeros((0, 0, 3), np.float32), out)
         return out
     change = _shade(depth_mm[win], profile, config.gain) if win is not None else None
     if not out.flags.c_contiguous:
         return _copied_into(out, noisy_image(_background_single(profile), change, win, noise_seed, config.noise_std,
                                              np.empty((h, w, 3), np.uint8)))
     return noisy_image(_background_single(profile), change, win, noise_seed, config.noise_std, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _deformed_span(depth: np.ndarray, s0: int, s1: int, t0: int, t1: int,
+                   floor: float) -> tuple[int, int, int, int]:  # pragma: no cover (compiled)
+    # first and last row, first and last column of the pixels deeper than ``floor`` in rows s0:s1, cols t0:t1
+    # (-1s when there are none): one pass, where array code made a boolean image and three reductions
+    first_row, last_row, first_col, last_col = -1, -1, t1, -1
+    for i in range(s0, s1):
+        row = depth[i]
+        lo = -1
+        for j in range(t0, t1):
+            if row[j] > floor:
+                lo = j
+                break
+        if lo < 0:
+            continue
+        hi = lo
+        for j in range(t1 - 1, lo, -1):
+            if row[j] > floor:
+                hi = j
+                break
+        if first_row < 0:
+            first_row = i
+        last_row = i
+        first_col, last_col = min(first_col, lo), max(last_col, hi)
+    if first_row < 0:
+        return -1, -1, -1, -1
+    return first_row, last_row, first_col, last_col
 
 
 def _copied_into(out: np.ndarray, image: np.ndarray) -> np.ndarray:

@@ -244,18 +244,24 @@ def _contact_pass(gap: np.ndarray, runs: np.ndarray, piece: np.ndarray, deepest:
             # beyond the contact (its overlap there is positive) the surface crosses fraction d between the two
             # pixels; where it ends (a sharp edge, as a punch's, or the image's border), the gel is held at this
             # pixel's overlap. A 4-neighbour in overlap belongs to this pixel's piece.
+            # Interior pixels (every side in the image and in contact; a side out of the image reads -inf) are
+            # the common case: one test for them.
+            left_o = -row[j - 1] if j > 0 else -np.inf
+            right_o = -row[j + 1] if j + 1 < w else -np.inf
+            up_o = -up_row[j] if has_up else -np.inf
+            down_o = -down_row[j] if has_down else -np.inf
+            if min(min(up_o, down_o), min(left_o, right_o)) > level:
+                continue
             on_rim = False
             for side in range(4):
                 if side == 0:
-                    inside, outside_o = has_up, -up_row[j]
+                    inside, outside_o = has_up, up_o
                 elif side == 1:
-                    inside, outside_o = has_down, -down_row[j]
+                    inside, outside_o = has_down, down_o
                 elif side == 2:
-                    inside = j > 0
-                    outside_o = -row[j - 1] if inside else 0.0
+                    inside, outside_o = j > 0, left_o
                 else:
-                    inside = j + 1 < w
-                    outside_o = -row[j + 1] if inside else 0.0
+                    inside, outside_o = j + 1 < w, right_o
                 if inside:
                     if outside_o > level:
                         continue

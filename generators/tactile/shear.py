@@ -537,6 +537,7 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
     sliding = np.zeros(m, np.bool_)
     q_slip = np.zeros(2 * m)
     keep = np.empty(2 * m)
+    pushed = np.empty(0)  # the displacement the sliding cells' tractions push the cells by, once computed
     rounds, solved_loose = 0, False
     while True:
         mag = np.hypot(q[:m], q[m:])
@@ -549,9 +550,10 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
                     positive = mag[i] > 0.0
                     q_slip[i] = limit_cell[i] * (q[i] / mag[i]) if positive else 0.0
                     q_slip[m + i] = limit_cell[i] * (q[m + i] / mag[i]) if positive else 0.0
+            pushed = np.empty(0)  # the sliding tractions changed
             tol = round_tol
         elif solved_loose:
-            tol = settled_tol
+            tol = settled_tol  # same sliding tractions as the last round: its push still holds
         else:
             break
         if sliding.all():
@@ -559,7 +561,8 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
         else:
             for i in range(m):
                 keep[i] = keep[m + i] = 0.0 if sliding[i] else 1.0
-            pushed = _apply_cells(matrix, spectra, pad, window, win_rows, win_cols, q_slip)
+            if pushed.size == 0:
+                pushed = _apply_cells(matrix, spectra, pad, window, win_rows, win_cols, q_slip)
             q = q_slip + _cg_cells(*op, keep, target - pushed, q - q_slip, tol, 200)
         solved_loose = tol == round_tol
     return q.reshape(2, m), lam_s, lam_t, q_s.reshape(2, m), q_t.reshape(2, m)

@@ -5,7 +5,8 @@ bytes per recorded frame, and ``evaluate``'s environment steps per CPU-second wi
     python benchmarks/task_throughput.py [--tasks all] [--seeds 3] [--passes 2] [--name task_throughput]
 
 CPU seconds are the process's (``time.process_time``: all its threads, so a software-GL renderer that uses
-several threads is charged in full); stages are timed by wrapping the methods that do them. The quoted rate
+several threads is charged in full); the process keeps its freed memory as ``generate task``'s workers do
+(``generators/allocator.py``); stages are timed by wrapping the methods that do them. The quoted rate
 is the best pass, every pass recorded. Writes benchmarks/results/NAME.json and docs/figures/NAME.png
 (``--name``, default task_throughput).
 """
@@ -35,6 +36,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 
 from univtac_data.envs.evaluate import evaluate  # noqa: E402
+from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
 from univtac_data.generators.scene import cameras as cameras_module  # noqa: E402
 from univtac_data.generators.scene import sim as sim_module  # noqa: E402
 from univtac_data.generators.tasks.base import TaskConfig  # noqa: E402
@@ -109,6 +111,7 @@ def main() -> int:
     parser.add_argument("--name", default="task_throughput", help="file name of the JSON and the chart")
     args = parser.parse_args()
     tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
+    keep_freed_memory()  # as `generate task`'s workers do (generators/allocator.py)
     clock = StageClock()
     install(clock)
     seeds = list(range(args.seeds))

@@ -163,7 +163,7 @@ def test_the_geometric_box_holds_the_whole_deformation(shape: str) -> None:
 @pytest.mark.parametrize("shape", ["sphere", "cross", "punch"])
 def test_images_and_micrometres_written_into_a_used_buffer_equal_fresh_ones(shape: str) -> None:
     """A buffer that held another frame (here: noise) is overwritten everywhere: inside the deformed window by
-    the shading and the conversion, outside it by the background and zeros."""
+    the shading and the conversion, outside it by the background and zeros; a strided image buffer too."""
     grid = sensor_grid(GF225, 1)
     result = solve_contact(demo_gap(GF225, shape), grid, GF225.material, ContactConfig(method="geometric"))
     flat = np.zeros(grid.shape)
@@ -174,6 +174,9 @@ def test_images_and_micrometres_written_into_a_used_buffer_equal_fresh_ones(shap
         np.testing.assert_array_equal(render_shaded(depth, GF225, deformed_box=box, out=used_rgb),
                                       render_shaded(depth, GF225))
         np.testing.assert_array_equal(_to_micrometres(depth, box, used_um), _to_micrometres(depth))
+        strided = rng.integers(0, 256, (*grid.shape, 4), dtype=np.uint8)[..., :3]  # not C-contiguous
+        np.testing.assert_array_equal(render_shaded(depth, GF225, deformed_box=box, out=strided),
+                                      render_shaded(depth, GF225))
 
 
 def test_no_geometric_contact_gives_an_empty_box() -> None:

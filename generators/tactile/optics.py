@@ -175,6 +175,8 @@ def render_shaded(
     elif out.shape != (h, w, 3) or out.dtype != np.uint8:
         raise ValueError(f"out must be ({h}, {w}, 3) uint8 (got {out.shape} {out.dtype})")
     if noise_seed is None:
+        if not out.flags.c_contiguous:  # the compiled shading writes whole contiguous rows
+            return _copied_into(out, render_shaded(depth_mm, profile, config, deformed_box=deformed_box))
         # only the deformed window differs from the cached background: the shading writes the window, the
         # background the rest (copying it everywhere first wrote the window twice)
         background = _background_uint8(profile)

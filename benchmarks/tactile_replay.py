@@ -30,6 +30,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import matplotlib  # noqa: E402
@@ -125,7 +126,7 @@ def main() -> int:
     before = {}
     if args.before:
         try:
-            before = {r["task"]: r for r in json.loads(open(args.before).read())["rows"]}
+            before = {r["task"]: r for r in json.loads(Path(args.before).read_text())["rows"]}
         except (OSError, ValueError, KeyError, TypeError) as err:
             parser.error(f"--before {args.before}: not a tactile_replay JSON ({err})")
     keep_freed_memory()  # as the generator's workers do

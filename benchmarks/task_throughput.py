@@ -9,6 +9,11 @@ several threads is charged in full); the process keeps its freed memory as ``gen
 (``generators/allocator.py``); stages are timed by wrapping the methods that do them. The quoted rate
 is the best pass, every pass recorded. Writes benchmarks/results/NAME.json and docs/figures/NAME.png
 (``--name``, default task_throughput).
+
+``--split`` adds one pass per task without cameras in which every compiled entry point is timed too
+(``install_compiled``): each stage's CPU time inside compiled code, the rest being Python, and the *floor*,
+frames / compiled seconds: the rate no rewrite of the Python between the kernels could beat without the
+kernels doing less work (``docs/figures/NAME_split.png``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse  # noqa: E402
+import functools  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
@@ -32,8 +38,12 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import mujoco  # noqa: E402
+import numcodecs.blosc  # noqa: E402
+import scipy.fft  # noqa: E402
 
 from common import FIGURES, RESULTS, machine  # noqa: E402
+from numba.core.registry import CPUDispatcher  # noqa: E402
 
 from univtac_data.envs.evaluate import evaluate  # noqa: E402
 from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
@@ -45,32 +55,62 @@ from univtac_data.generators.tasks.registry import TASK_NAMES  # noqa: E402
 from univtac_data.storage import Location, write_episode_file  # noqa: E402
 
 STAGES = ("physics", "expert touch", "tactile", "cameras", "writing")
+STAGE_COLOURS = ("#4c72b0", "#8172b2", "#dd8452", "#55a868", "#c44e52", "#999999")  # and "other"
+GOAL_FRAMES_PER_S = 150.0  # the tasks' goal without cameras (issues 17 and 18)
 
 
 class StageClock:
-    """CPU seconds spent inside wrapped methods, by stage; nested stages are subtracted from their parent."""
+    """CPU seconds spent inside wrapped methods, by stage; nested stages are subtracted from their parent.
+    With compiled entry points wrapped too (``install_compiled``), also the part of each stage's seconds
+    spent inside compiled code (``compiled``; the outermost compiled call only, so a kernel calling another
+    counts once)."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
-        self._stack: list[list[float]] = []
+        self.compiled: dict[str, float] = defaultdict(float)
+        self._stack: list[list[Any]] = []  # [stage, seconds of the stages nested in it]
+        self._in_compiled = False
 
-    def wrap(self, owner: Any, name: str, stage: str) -> None:
-        original: Callable[..., Any] = getattr(owner, name)
+    def current(self) -> str:
+        """The innermost stage being timed ("other" outside every stage)."""
+        return self._stack[-1][0] if self._stack else "other"
+
+    def timed(self, original: Callable[..., Any], stage: str) -> Callable[..., Any]:
         clock = self
 
         def timed(*args: Any, **kwargs: Any) -> Any:
             start = time.process_time()
-            clock._stack.append([0.0])
+            clock._stack.append([stage, 0.0])
             try:
                 return original(*args, **kwargs)
             finally:
-                inner = clock._stack.pop()[0]
+                inner = clock._stack.pop()[1]
                 spent = time.process_time() - start
                 clock.seconds[stage] += spent - inner
                 if clock._stack:
-                    clock._stack[-1][0] += spent
+                    clock._stack[-1][1] += spent
 
-        setattr(owner, name, timed)
+        return timed
+
+    def wrap(self, owner: Any, name: str, stage: str) -> None:
+        setattr(owner, name, self.timed(getattr(owner, name), stage))
+
+    def wrap_compiled(self, function: Callable[..., Any]) -> Callable[..., Any]:
+        clock = self
+
+        @functools.wraps(function)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            if clock._in_compiled:
+                return function(*args, **kwargs)
+            clock._in_compiled = True
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                clock.compiled[clock.current()] += time.process_time() - start
+                clock._in_compiled = False
+
+        return call
 
 
 def install(clock: StageClock) -> None:
@@ -80,26 +120,56 @@ def install(clock: StageClock) -> None:
     clock.wrap(cameras_module.CameraRig, "render", "cameras")
 
 
+def install_compiled(clock: StageClock) -> int:
+    """Wrap every compiled entry point the generator and the writer call from Python (numba kernels of this
+    package, MuJoCo's ``mj_*``, SciPy's FFTs, Blosc's compression); the number wrapped. Everything else is
+    Python: the interpreter, NumPy's array calls, h5py and the timers themselves. NumPy and h5py count as
+    Python on purpose: a rewrite could avoid some of their work, so the compiled seconds stay a lower bound
+    on what the frame needs. Call after a first episode has loaded every module and kernel."""
+    wrapped = 0
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("univtac_data") or module is None:
+            continue
+        for attr, value in list(vars(module).items()):
+            if isinstance(value, CPUDispatcher):
+                setattr(module, attr, clock.wrap_compiled(value))
+                wrapped += 1
+    for attr in dir(mujoco):
+        if attr.startswith("mj_") and callable(getattr(mujoco, attr)):
+            setattr(mujoco, attr, clock.wrap_compiled(getattr(mujoco, attr)))
+            wrapped += 1
+    for attr in ("fft", "ifft", "rfft", "irfft", "fft2", "ifft2", "rfft2", "irfft2"):
+        setattr(scipy.fft, attr, clock.wrap_compiled(getattr(scipy.fft, attr)))
+        wrapped += 1
+    numcodecs.blosc.compress = clock.wrap_compiled(numcodecs.blosc.compress)
+    return wrapped + 1
+
+
 def one_row(task: str, cameras: bool, seeds: list[int], clock: StageClock, out_dir: str) -> dict[str, Any]:
     config = TaskConfig(cameras=cameras)
     clock.seconds.clear()
+    clock.compiled.clear()
     frames = size = 0
     start = time.process_time()
     wall = time.perf_counter()
+    write = clock.timed(write_episode_file, "writing")
     for seed in seeds:
         outcome = run_expert(TaskEpisodeSpec(task, seed, config))
         assert outcome.episode is not None
-        t = time.process_time()
-        written = write_episode_file(Location.parse(out_dir), "hdf5", outcome.episode, compression_level=1)
-        clock.seconds["writing"] += time.process_time() - t
+        written = write(Location.parse(out_dir), "hdf5", outcome.episode, compression_level=1)
         frames += outcome.episode.meta.n_frames
         size += written.row.bytes
     cpu = time.process_time() - start
-    return {"task": task, "cameras": "2 x 480x270" if cameras else "none", "frames": frames,
-            "frames_per_cpu_s": frames / cpu, "frames_per_wall_s": frames / (time.perf_counter() - wall),
-            "kib_per_frame": size / frames / 1024,
-            "ms_per_frame": {stage: 1000 * clock.seconds.get(stage, 0.0) / frames for stage in STAGES},
-            "ms_per_frame_other": 1000 * (cpu - sum(clock.seconds.values())) / frames}
+    row = {"task": task, "cameras": "2 x 480x270" if cameras else "none", "frames": frames,
+           "frames_per_cpu_s": frames / cpu, "frames_per_wall_s": frames / (time.perf_counter() - wall),
+           "kib_per_frame": size / frames / 1024,
+           "ms_per_frame": {stage: 1000 * clock.seconds.get(stage, 0.0) / frames for stage in STAGES},
+           "ms_per_frame_other": 1000 * (cpu - sum(clock.seconds.values())) / frames}
+    if clock.compiled:
+        row["ms_per_frame_compiled"] = {stage: 1000 * clock.compiled.get(stage, 0.0) / frames
+                                        for stage in (*STAGES, "other")}
+        row["floor_frames_per_cpu_s"] = frames / sum(clock.compiled.values())
+    return row
 
 
 def main() -> int:
@@ -109,6 +179,9 @@ def main() -> int:
     parser.add_argument("--passes", type=int, default=2)
     parser.add_argument("--evaluate-rollouts", type=int, default=2)
     parser.add_argument("--name", default="task_throughput", help="file name of the JSON and the chart")
+    parser.add_argument("--split", action="store_true",
+                        help="after the timed passes, one more pass without cameras with every compiled entry point "
+                             "timed: each stage's compiled and Python time, and the floor rate")
     args = parser.parse_args()
     tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
     keep_freed_memory()  # as `generate task`'s workers do (generators/allocator.py)
@@ -128,6 +201,11 @@ def main() -> int:
                     rows[(task, cameras)].append(row)
                     print(f"pass {p}: {task} cameras={cameras}: {row['frames_per_cpu_s']:.1f} frames/CPU-s, "
                           f"{row['kib_per_frame']:.0f} KiB/frame", file=sys.stderr)
+        split = []
+        if args.split:  # last: the wrappers stay installed and slow every call a little
+            wrapped = install_compiled(clock)
+            print(f"split pass: {wrapped} compiled entry points timed", file=sys.stderr)
+            split = [one_row(task, False, seeds, clock, os.path.join(tmp, f"{task}-split")) for task in tasks]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     best = [max(passes, key=lambda r: r["frames_per_cpu_s"]) | {"passes_frames_per_cpu_s": [r["frames_per_cpu_s"] for r in passes]}
@@ -142,6 +220,9 @@ def main() -> int:
                             "steps": steps, "steps_per_cpu_s": steps / cpu, "success_rate": report.summary()["success_rate"]})
     result = {"machine": machine(threads_used=1), "seeds": seeds, "passes": args.passes, "rows": best,
               "evaluate": evaluations}
+    if split:
+        result["split"] = split
+        split_chart(split, best, args.name)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=1))
     chart(best, args.name)
@@ -157,8 +238,7 @@ def chart(rows: list[dict[str, Any]], name: str = "task_throughput") -> None:
     fig, ax = plt.subplots(figsize=(8, 0.9 + 0.6 * len(rows)))
     labels = [f"{r['task']}, cameras {r['cameras']}" for r in rows]
     left = [0.0] * len(rows)
-    colours = ["#4c72b0", "#8172b2", "#dd8452", "#55a868", "#c44e52", "#999999"]
-    for stage, colour in zip((*STAGES, "other"), colours):
+    for stage, colour in zip((*STAGES, "other"), STAGE_COLOURS):
         widths = [r["ms_per_frame"].get(stage, r["ms_per_frame_other"] if stage == "other" else 0.0) for r in rows]
         ax.barh(labels, widths, left=left, color=colour, label=stage)
         left = [a + b for a, b in zip(left, widths)]
@@ -171,6 +251,35 @@ def chart(rows: list[dict[str, Any]], name: str = "task_throughput") -> None:
     fig.tight_layout()
     FIGURES.mkdir(parents=True, exist_ok=True)
     fig.savefig(FIGURES / f"{name}.png", dpi=120)
+
+
+def split_chart(split: list[dict[str, Any]], best: list[dict[str, Any]], name: str) -> None:
+    """Per task without cameras: each stage's compiled time (the timed pass), then the Python: the best
+    untimed pass's frame time minus the compiled time (so the timers' own cost is left out)."""
+    rate = {r["task"]: r["frames_per_cpu_s"] for r in best if r["cameras"] == "none"}
+    fig, ax = plt.subplots(figsize=(8.5, 1.6 + 0.55 * len(split)))
+    labels = [r["task"] for r in split]
+    left = [0.0] * len(split)
+    for stage, colour in zip((*STAGES, "other"), STAGE_COLOURS):
+        widths = [r["ms_per_frame_compiled"][stage] for r in split]
+        if any(w > 0.02 for w in widths):
+            ax.barh(labels, widths, left=left, color=colour, label=f"compiled: {stage}")
+            left = [a + b for a, b in zip(left, widths)]
+    python = [max(1000.0 / rate[r["task"]] - compiled, 0.0) for r, compiled in zip(split, left)]
+    ax.barh(labels, python, left=left, color="#dddddd", label="Python: interpreter, NumPy, h5py")
+    ax.axvline(1000.0 / GOAL_FRAMES_PER_S, color="black", linestyle="--", linewidth=1,
+               label=f"{GOAL_FRAMES_PER_S:.0f} frames/s/core")
+    for y, r in enumerate(split):
+        ax.text(left[y] + python[y] + 0.15, y, f"{rate[r['task']]:.0f}/s, floor {r['floor_frames_per_cpu_s']:.0f}",
+                va="center", fontsize=8)
+    ax.set_xlabel("CPU ms per recorded frame without cameras (one core)")
+    ax.set_xlim(0, max(a + b for a, b in zip(left, python)) * 1.3)
+    ax.invert_yaxis()
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3)
+    ax.set_title("Task frames: compiled work (the floor) and the Python between it")
+    fig.tight_layout()
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / f"{name}_split.png", dpi=120)
 
 
 if __name__ == "__main__":

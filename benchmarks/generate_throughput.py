@@ -15,6 +15,11 @@ from numba's on-disk cache) once per process, which a generator worker pays once
 Contact models: geometric; elastic on a half-space (the default); elastic on a gel layer bonded to its backing
 (``--gel layer``), whose rows also show how much larger its forces are.
 
+``--split`` adds ``--passes`` more passes of every row in which every compiled entry point is timed
+(``compiled_split.py``): the row's CPU ms a frame inside compiled code (its least over the passes) and the ceiling
+rate, frames / compiled seconds, which no rewrite of the Python between the kernels could beat without the
+kernels doing less work.
+
 Writes benchmarks/results/generate_throughput.json and docs/figures/generate_throughput.png.
 """
 
@@ -40,6 +45,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from common import FIGURES, RESULTS, machine  # noqa: E402
+from compiled_split import CompiledClock  # noqa: E402
 
 from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
 from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode  # noqa: E402
@@ -113,6 +119,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--shapes", default="all", help="'all' (the 14) or a comma-separated list")
     parser.add_argument("--passes", type=int, default=3, help="runs of every row; the best is quoted (default 3)")
+    parser.add_argument("--split", action="store_true",
+                        help="as many more passes of every row with every compiled entry point timed: its compiled "
+                             "ms a frame and the ceiling rate (compiled_split.py)")
     args = parser.parse_args()
     keep_freed_memory()  # as the generator's workers do (generators/allocator.py)
     shapes = list(INDENTER_NAMES) if args.shapes == "all" else args.shapes.split(",")
@@ -156,6 +165,26 @@ def main() -> None:
         profile = {f"{sensor} {m}": profile_stages(sensor, m, "cross", args.frames,
                                                    os.path.join(tmp, f"profile-{sensor}-{m}"))
                    for sensor, m in (("gelsight_mini", "geometric"), ("gelsight_mini", "elastic"), ("gf225", "geometric"))}
+        if args.split:  # last: the wrappers stay installed and slow every call a little
+            clock = CompiledClock()
+            clock.install()
+            ceilings: dict[tuple[str, str, str], list[tuple[float, float]]] = {c: [] for c in configs}
+            for k_pass in range(args.passes):  # interleaved, as the timed passes
+                for sensor, method, gel in configs:
+                    clock.seconds.clear()
+                    out = os.path.join(tmp, f"{sensor}-{method}-{gel}-split-{k_pass}")
+                    frames = sum(one(sensor, method, shape, args.frames, out, k, gel)["frames"]
+                                 for k, shape in enumerate(shapes))
+                    shutil.rmtree(out)
+                    compiled_s = sum(clock.seconds.values())
+                    ceilings[(sensor, method, gel)].append((1000 * compiled_s / frames, frames / compiled_s))
+                    print(f"split pass {k_pass + 1}: {sensor} {method} {gel}: compiled {1000 * compiled_s / frames:.2f} "
+                          f"ms a frame, ceiling {frames / compiled_s:.1f} frames/s/core", file=sys.stderr)
+            for row, config in zip(rows, configs):  # the pass with the least compiled time: the highest ceiling
+                compiled_ms, ceiling = min(ceilings[config])
+                row["compiled_ms_per_frame"] = round(compiled_ms, 3)
+                row["ceiling_frames_per_s_per_core"] = round(ceiling, 1)
+                row["ceiling_frames_per_s_per_core_passes"] = [round(f, 1) for _, f in ceilings[config]]
     result = {
         "machine": machine(threads_used=1), "shapes": shapes, "frames_per_episode": args.frames,
         "passes": args.passes,
@@ -182,8 +211,11 @@ def chart(result: dict, path: os.PathLike[str]) -> None:  # type: ignore[type-ar
     ax1.bar(labels, best, color=colours, yerr=[np.subtract(best, slowest), np.zeros(len(rows))], capsize=3)
     ax1.axhline(result["targets"]["geometric_frames_per_s"], color="tab:blue", ls="--", lw=1, label="target, geometric")
     ax1.axhline(result["targets"]["elastic_frames_per_s"], color="tab:orange", ls="--", lw=1, label="target, elastic")
+    if all("ceiling_frames_per_s_per_core" in r for r in rows):  # --split: what the compiled work alone allows
+        ax1.scatter(labels, [r["ceiling_frames_per_s_per_core"] for r in rows], marker="_", s=600, color="black",
+                    zorder=3, label="ceiling: compiled work only")
     ax1.set_ylabel("frames / s / core, end to end (best pass; whisker: slowest)")
-    ax1.legend(fontsize=8)
+    ax1.legend(fontsize=8, loc="upper center")
     ax1.tick_params(axis="x", labelsize=7)
     ax2.bar(labels, [r["bytes_per_frame"] / 1024 for r in rows], color=colours)
     ax2.axhline(result["targets"]["bytes_per_frame_max"] / 1024, color="k", ls="--", lw=1,

@@ -10,10 +10,11 @@ several threads is charged in full); the process keeps its freed memory as ``gen
 is the best pass, every pass recorded. Writes benchmarks/results/NAME.json and docs/figures/NAME.png
 (``--name``, default task_throughput).
 
-``--split`` adds one pass per task without cameras in which every compiled entry point is timed too
-(``install_compiled``): each stage's CPU time inside compiled code, the rest being Python, and the *floor*,
-frames / compiled seconds: the rate no rewrite of the Python between the kernels could beat without the
-kernels doing less work (``docs/figures/NAME_split.png``).
+``--split`` adds ``--passes`` more passes per task without cameras in which every compiled entry point is
+timed too (``compiled_split.py``): each stage's CPU time inside compiled code, the rest being Python, and the
+*ceiling*, frames / compiled seconds: the rate no rewrite of the Python between the kernels could beat without
+the kernels doing less work. Per task the pass with the highest ceiling is kept, every pass's ceiling recorded
+(``docs/figures/NAME_split.png``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse  # noqa: E402
-import functools  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
@@ -38,12 +38,9 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import mujoco  # noqa: E402
-import numcodecs.blosc  # noqa: E402
-import scipy.fft  # noqa: E402
 
 from common import FIGURES, RESULTS, machine  # noqa: E402
-from numba.core.registry import CPUDispatcher  # noqa: E402
+from compiled_split import CompiledClock  # noqa: E402
 
 from univtac_data.envs.evaluate import evaluate  # noqa: E402
 from univtac_data.generators.allocator import keep_freed_memory  # noqa: E402
@@ -61,15 +58,13 @@ GOAL_FRAMES_PER_S = 150.0  # the tasks' goal without cameras (issues 17 and 18)
 
 class StageClock:
     """CPU seconds spent inside wrapped methods, by stage; nested stages are subtracted from their parent.
-    With compiled entry points wrapped too (``install_compiled``), also the part of each stage's seconds
-    spent inside compiled code (``compiled``; the outermost compiled call only, so a kernel calling another
-    counts once)."""
+    Once ``compiled.install()`` has run, also the part of each stage's seconds spent inside compiled code
+    (``compiled.seconds``, by stage; ``compiled_split.py``)."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
-        self.compiled: dict[str, float] = defaultdict(float)
         self._stack: list[list[Any]] = []  # [stage, seconds of the stages nested in it]
-        self._in_compiled = False
+        self.compiled = CompiledClock(key=self.current)
 
     def current(self) -> str:
         """The innermost stage being timed ("other" outside every stage)."""
@@ -95,23 +90,6 @@ class StageClock:
     def wrap(self, owner: Any, name: str, stage: str) -> None:
         setattr(owner, name, self.timed(getattr(owner, name), stage))
 
-    def wrap_compiled(self, function: Callable[..., Any]) -> Callable[..., Any]:
-        clock = self
-
-        @functools.wraps(function)
-        def call(*args: Any, **kwargs: Any) -> Any:
-            if clock._in_compiled:
-                return function(*args, **kwargs)
-            clock._in_compiled = True
-            start = time.process_time()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                clock.compiled[clock.current()] += time.process_time() - start
-                clock._in_compiled = False
-
-        return call
-
 
 def install(clock: StageClock) -> None:
     clock.wrap(sim_module.GripperSim, "tick", "physics")
@@ -120,35 +98,10 @@ def install(clock: StageClock) -> None:
     clock.wrap(cameras_module.CameraRig, "render", "cameras")
 
 
-def install_compiled(clock: StageClock) -> int:
-    """Wrap every compiled entry point the generator and the writer call from Python (numba kernels of this
-    package, MuJoCo's ``mj_*``, SciPy's FFTs, Blosc's compression); the number wrapped. Everything else is
-    Python: the interpreter, NumPy's array calls, h5py and the timers themselves. NumPy and h5py count as
-    Python on purpose: a rewrite could avoid some of their work, so the compiled seconds stay a lower bound
-    on what the frame needs. Call after a first episode has loaded every module and kernel."""
-    wrapped = 0
-    for name, module in list(sys.modules.items()):
-        if not name.startswith("univtac_data") or module is None:
-            continue
-        for attr, value in list(vars(module).items()):
-            if isinstance(value, CPUDispatcher):
-                setattr(module, attr, clock.wrap_compiled(value))
-                wrapped += 1
-    for attr in dir(mujoco):
-        if attr.startswith("mj_") and callable(getattr(mujoco, attr)):
-            setattr(mujoco, attr, clock.wrap_compiled(getattr(mujoco, attr)))
-            wrapped += 1
-    for attr in ("fft", "ifft", "rfft", "irfft", "fft2", "ifft2", "rfft2", "irfft2"):
-        setattr(scipy.fft, attr, clock.wrap_compiled(getattr(scipy.fft, attr)))
-        wrapped += 1
-    numcodecs.blosc.compress = clock.wrap_compiled(numcodecs.blosc.compress)
-    return wrapped + 1
-
-
 def one_row(task: str, cameras: bool, seeds: list[int], clock: StageClock, out_dir: str) -> dict[str, Any]:
     config = TaskConfig(cameras=cameras)
     clock.seconds.clear()
-    clock.compiled.clear()
+    clock.compiled.seconds.clear()
     frames = size = 0
     start = time.process_time()
     wall = time.perf_counter()
@@ -165,10 +118,10 @@ def one_row(task: str, cameras: bool, seeds: list[int], clock: StageClock, out_d
            "kib_per_frame": size / frames / 1024,
            "ms_per_frame": {stage: 1000 * clock.seconds.get(stage, 0.0) / frames for stage in STAGES},
            "ms_per_frame_other": 1000 * (cpu - sum(clock.seconds.values())) / frames}
-    if clock.compiled:
-        row["ms_per_frame_compiled"] = {stage: 1000 * clock.compiled.get(stage, 0.0) / frames
+    if clock.compiled.seconds:
+        row["ms_per_frame_compiled"] = {stage: 1000 * clock.compiled.seconds.get(stage, 0.0) / frames
                                         for stage in (*STAGES, "other")}
-        row["floor_frames_per_cpu_s"] = frames / sum(clock.compiled.values())
+        row["ceiling_frames_per_cpu_s"] = frames / sum(clock.compiled.seconds.values())
     return row
 
 
@@ -180,8 +133,8 @@ def main() -> int:
     parser.add_argument("--evaluate-rollouts", type=int, default=2)
     parser.add_argument("--name", default="task_throughput", help="file name of the JSON and the chart")
     parser.add_argument("--split", action="store_true",
-                        help="after the timed passes, one more pass without cameras with every compiled entry point "
-                             "timed: each stage's compiled and Python time, and the floor rate")
+                        help="after the timed passes, as many passes without cameras with every compiled entry point "
+                             "timed: each stage's compiled and Python time, and the ceiling rate")
     args = parser.parse_args()
     tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
     keep_freed_memory()  # as `generate task`'s workers do (generators/allocator.py)
@@ -203,9 +156,14 @@ def main() -> int:
                           f"{row['kib_per_frame']:.0f} KiB/frame", file=sys.stderr)
         split = []
         if args.split:  # last: the wrappers stay installed and slow every call a little
-            wrapped = install_compiled(clock)
-            print(f"split pass: {wrapped} compiled entry points timed", file=sys.stderr)
-            split = [one_row(task, False, seeds, clock, os.path.join(tmp, f"{task}-split")) for task in tasks]
+            wrapped = clock.compiled.install()
+            print(f"split passes: {wrapped} compiled entry points timed", file=sys.stderr)
+            timed = [[one_row(task, False, seeds, clock, os.path.join(tmp, f"{task}-split-{p}")) for task in tasks]
+                     for p in range(args.passes)]
+            # per task the pass with the least compiled time: the highest ceiling, the one no claim can undercut
+            split = [max(rows_of_task, key=lambda r: r["ceiling_frames_per_cpu_s"])
+                     | {"passes_ceiling_frames_per_cpu_s": [r["ceiling_frames_per_cpu_s"] for r in rows_of_task]}
+                     for rows_of_task in zip(*timed)]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     best = [max(passes, key=lambda r: r["frames_per_cpu_s"]) | {"passes_frames_per_cpu_s": [r["frames_per_cpu_s"] for r in passes]}
@@ -270,13 +228,13 @@ def split_chart(split: list[dict[str, Any]], best: list[dict[str, Any]], name: s
     ax.axvline(1000.0 / GOAL_FRAMES_PER_S, color="black", linestyle="--", linewidth=1,
                label=f"{GOAL_FRAMES_PER_S:.0f} frames/s/core")
     for y, r in enumerate(split):
-        ax.text(left[y] + python[y] + 0.15, y, f"{rate[r['task']]:.0f}/s, floor {r['floor_frames_per_cpu_s']:.0f}",
+        ax.text(left[y] + python[y] + 0.15, y, f"{rate[r['task']]:.0f}/s, ceiling {r['ceiling_frames_per_cpu_s']:.0f}",
                 va="center", fontsize=8)
     ax.set_xlabel("CPU ms per recorded frame without cameras (one core)")
     ax.set_xlim(0, max(a + b for a, b in zip(left, python)) * 1.3)
     ax.invert_yaxis()
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3)
-    ax.set_title("Task frames: compiled work (the floor) and the Python between it")
+    ax.set_title("Task frames: the compiled work (it sets the ceiling) and the Python between it")
     fig.tight_layout()
     FIGURES.mkdir(parents=True, exist_ok=True)
     fig.savefig(FIGURES / f"{name}_split.png", dpi=120)

@@ -2,12 +2,12 @@
 between it (``task_throughput.py --split``, ``generate_throughput.py --split``).
 
 Every compiled entry point the generator and the writer call from Python is wrapped: this package's numba
-kernels, MuJoCo's ``mj_*`` functions and its model compiler, SciPy's FFTs and Blosc's compression. Only the outermost call is timed,
-so a kernel that calls another counts once. Everything else is Python: the interpreter, NumPy's array calls,
-h5py, and the timers themselves (two clock reads a call). NumPy and h5py count as Python on purpose: a
-rewrite could avoid some of their work, so the compiled seconds stay a lower bound on what a frame needs, and
-frames / compiled seconds is a *ceiling* rate that no rewrite of the Python could beat without the kernels
-doing less work.
+kernels, MuJoCo's ``mj_*`` functions and its model compiler, SciPy's FFTs and Blosc's compression. Only the
+outermost call is timed, so a kernel that calls another counts once. Everything else is Python: the
+interpreter, NumPy's array calls, h5py, and the timers themselves (two clock reads a call). NumPy and h5py
+count as Python on purpose: a rewrite could avoid some of their work, so the compiled seconds stay a lower
+bound on what a frame needs, and frames / compiled seconds is a *ceiling* rate that no rewrite of the Python
+could beat without the kernels doing less work.
 """
 
 from __future__ import annotations

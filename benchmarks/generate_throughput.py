@@ -178,8 +178,9 @@ def main() -> None:
                     shutil.rmtree(out)
                     compiled_s = sum(clock.seconds.values())
                     ceilings[(sensor, method, gel)].append((1000 * compiled_s / frames, frames / compiled_s))
-                    print(f"split pass {k_pass + 1}: {sensor} {method} {gel}: compiled {1000 * compiled_s / frames:.2f} "
-                          f"ms a frame, ceiling {frames / compiled_s:.1f} frames/s/core", file=sys.stderr)
+                    print(f"split pass {k_pass + 1}: {sensor} {method} {gel}: compiled "
+                          f"{1000 * compiled_s / frames:.2f} ms a frame, "
+                          f"ceiling {frames / compiled_s:.1f} frames/s/core", file=sys.stderr)
             for row, config in zip(rows, configs):  # the pass with the least compiled time: the highest ceiling
                 compiled_ms, ceiling = min(ceilings[config])
                 row["compiled_ms_per_frame"] = round(compiled_ms, 3)

@@ -36,6 +36,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib import ticker  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
+from expert_runs import whole_expert  # noqa: E402
 
 from univtac_data.envs.evaluate import wilson_interval  # noqa: E402
 from univtac_data.generators.scene.geometry import quat_to_mat  # noqa: E402
@@ -145,24 +146,11 @@ def run_expert_seed(row: dict[str, Any], seed: int) -> dict[str, Any]:
     """The task's expert under ``row``'s settings from ``seed`` (the task's own layouts), not recorded; the
     controller ticks every 2 ms whatever the timestep, as in the task."""
     period = max(1, round(0.002 / row["timestep_s"]))
-    task = SweptTube(TaskConfig(cameras=False, timestep_s=row["timestep_s"], control_period_steps=period), row)
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        finite = True
-        for step in task.expert(ctx):
-            if session.steps >= task.step_limit:
-                break
-            state = session.step(step.action, step.primitive)
-            if not session.sim.finite():
-                finite = False
-                break
-        return {"seed": seed, "success": bool(finite and task.success(state)), "safe": bool(finite and session.safe),
-                "attempts": int(ctx.memory["attempts"]), "found_the_hole": bool(ctx.memory["inside"]),
-                "max_in_hand_slip_mm": round(float(session.max_in_hand_slip_mm), 2)}
-    finally:
-        session.close()
+    run = whole_expert(SweptTube(TaskConfig(cameras=False, timestep_s=row["timestep_s"], control_period_steps=period),
+                                 row), seed)
+    return {"seed": seed, "success": run.success, "safe": run.safe, "attempts": int(run.memory["attempts"]),
+            "found_the_hole": bool(run.memory["inside"]), "max_in_hand_slip_mm": round(run.max_in_hand_slip_mm, 2),
+            "first_violation": run.first_violation}
 
 
 def label(row: dict[str, Any]) -> str:

@@ -15,17 +15,23 @@ the grasp as made). Recorded per case (mean over the seeds, worst for the failur
   moves it when it sits off the pads' centre line: the task's in-hand slip);
 - wall time per physics step, us, and per policy step (20 ms simulated: what a finer timestep costs), ms.
 
+Under every solver case (timestep, noslip, cone, impratio; the grip cases are the swing's press, which the
+expert regulates itself) the task's whole expert also runs on ``--expert-seeds`` seeds (default 20: grasp,
+lift, tilt, swing upright in the loosened grasp, re-grasp, place): its success rate with a 95 % Wilson interval
+and its safety say whether the task survives the setting, not only the swing.
+
 A case **breaks** when the state goes non-finite, its pivot angle is more than 10 deg off the 0.25 ms case's (the
 finest timestep is the reference), the energy gain exceeds 5 mJ (a 0.275 kg bottle lifted 2 mm),
 the penetration exceeds 1.5 mm, or the bottle drifts more than 10 mm in the hand (the task's in-hand slip limit).
 
-    python benchmarks/pivot_stability.py
+    python benchmarks/pivot_stability.py [--expert-seeds 20]
 
 Writes benchmarks/results/pivot_stability.json and docs/figures/pivot_stability.png.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
@@ -38,7 +44,9 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
+from expert_runs import whole_expert  # noqa: E402
 
+from univtac_data.envs.evaluate import wilson_interval  # noqa: E402
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML  # noqa: E402
 from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat  # noqa: E402
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig  # noqa: E402
@@ -79,13 +87,26 @@ class Case:
 class SweptTask(PutBottleInShelf):
     """Put Bottle in Shelf with the case's solver options in place of the kit's."""
 
-    def __init__(self, case: Case) -> None:
-        super().__init__(TaskConfig(cameras=False, timestep_s=case.timestep_s), get_sensor("gelsight_mini"))
+    def __init__(self, case: Case, config: TaskConfig | None = None) -> None:
+        super().__init__(config or TaskConfig(cameras=False, timestep_s=case.timestep_s), get_sensor("gelsight_mini"))
         self.case = case
 
     def scene_xml(self, layout):  # type: ignore[no-untyped-def]
         option = TASK_OPTION_XML.split("\n")[0]
-        return super().scene_xml(layout).replace(option, self.case.option_xml)
+        xml = super().scene_xml(layout)
+        if option not in xml:
+            raise RuntimeError(f"the task scene no longer holds the kit's {option}: update this benchmark")
+        return xml.replace(option, self.case.option_xml)
+
+
+def run_expert_seed(case: Case, seed: int) -> dict[str, object]:
+    """The task's whole expert under ``case``'s solver options from ``seed``, not recorded; the controller ticks
+    every 2 ms whatever the timestep, as in the task."""
+    period = max(1, round(0.002 / case.timestep_s))
+    run = whole_expert(SweptTask(case, TaskConfig(cameras=False, timestep_s=case.timestep_s,
+                                                  control_period_steps=period)), seed)
+    return {"seed": seed, "success": run.success, "safe": run.safe, "finite": run.finite,
+            "first_violation": run.first_violation}
 
 
 def bottle_energy_j(session: TaskSession) -> float:
@@ -196,6 +217,14 @@ def label(case: Case) -> str:
 
 
 def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--expert-seeds", type=int, default=20,
+                        help="seeds of the task's whole expert per solver case (0: none)")
+    parser.add_argument("--plot-only", action="store_true", help="redraw the chart from the stored JSON")
+    args = parser.parse_args()
+    if args.plot_only:
+        plot(json.loads((RESULTS / "pivot_stability.json").read_text())["rows"])
+        return 0
     rows = []
     for case in cases():
         runs = [run(case, seed) for seed in SEEDS]
@@ -207,17 +236,26 @@ def main() -> int:
             row[key] = float(np.mean([r[key] for r in runs]))
         for key in ("penetration_mm", "energy_gain_mj", "drift_mm"):
             row[key] = float(np.max([r[key] for r in runs]))
+        if case.sweep != "grip" and args.expert_seeds > 0:
+            experts = [run_expert_seed(case, seed) for seed in range(args.expert_seeds)]
+            wins = sum(bool(e["success"]) for e in experts)
+            row.update(expert_seeds=len(experts), expert_success=wins / len(experts),
+                       expert_success_95=[round(v, 3) for v in wilson_interval(wins, len(experts))],
+                       expert_safe=sum(bool(e["safe"]) for e in experts) / len(experts), expert_runs=experts)
         rows.append(row)
     reference = next(r["pivot_deg"] for r in rows if r["sweep"] == "timestep" and r["timestep_s"] == 0.00025)
     for row in rows:
         row["breaks"] = broken(row, reference)  # type: ignore[arg-type]
         print(f"{row['label']:<58} pivot {row['pivot_deg']:6.1f} deg  pen {row['penetration_mm']:.3f} mm  "
               f"gain {row['energy_gain_mj']:7.2f} mJ  drift {row['drift_mm']:5.1f} mm  {row['us_per_step']:6.1f} us/step"
-              f"  {row['ms_per_policy_step']:5.2f} ms/policy step", flush=True)
+              f"  {row['ms_per_policy_step']:5.2f} ms/policy step"
+              + (f"  expert {row['expert_success']:.0%} ({row['expert_safe']:.0%} safe)" if "expert_success" in row
+                 else ""), flush=True)
     for row in rows:
         print(f"{row['label']:<58} {row['breaks'] or 'ok'}")
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = {"machine": machine(threads_used=1), "seeds": list(SEEDS), "hold_s": HOLD_S,
+    out = {"machine": machine(threads_used=1), "seeds": list(SEEDS), "expert_seeds": args.expert_seeds,
+           "hold_s": HOLD_S,
            "break_rules": {"energy_gain_mj": BREAK_ENERGY_MJ, "penetration_mm": BREAK_PENETRATION_MM,
                            "drift_mm": BREAK_DRIFT_MM, "pivot_off_reference_deg": BREAK_PIVOT_OFF_DEG,
                            "finite": True},
@@ -228,19 +266,24 @@ def main() -> int:
 
 
 def plot(rows: list[dict[str, object]]) -> None:
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.8))
     metrics = (("pivot_deg", "pivot angle towards upright, deg"), ("penetration_mm", "deepest pad penetration, mm"),
-               ("energy_gain_mj", "bottle energy gain, mJ"))
+               ("energy_gain_mj", "bottle energy gain, mJ"),
+               ("expert_success", "the task's whole expert: success, 95 % interval"))
     colours = {"default": "k", "timestep": "tab:blue", "noslip": "tab:orange", "cone": "tab:green",
                "impratio": "tab:purple", "grip": "tab:red"}
     for ax, (key, title) in zip(axes, metrics):
         for row in rows:
             x = row["ms_per_policy_step"] if row["finite"] else np.nan
-            y = row[key]
-            if not row["finite"] or not np.isfinite(y):
+            y = row.get(key)
+            if not row["finite"] or y is None or not np.isfinite(y):  # type: ignore[arg-type]
                 continue
             marker = "x" if row["breaks"] else "o"
             ax.scatter(x, y, c=colours[row["sweep"]], marker=marker, s=50)
+            if key == "expert_success":
+                low, high = row["expert_success_95"]  # type: ignore[misc]
+                ax.errorbar(x, y, yerr=[[y - low], [high - y]], fmt="none", ecolor=colours[row["sweep"]],
+                            elinewidth=1, capsize=2)
             ax.annotate(str(row["label"]).split(" (")[0], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.set_xlabel("wall time per policy step (20 ms simulated), ms, one core")
         ax.set_title(title)
@@ -251,7 +294,9 @@ def plot(rows: list[dict[str, object]]) -> None:
     handles.append(plt.Line2D([], [], color="grey", marker="x", ls="", label="breaks"))
     axes[0].legend(handles=handles, fontsize=8)
     broken_rows = [r["label"] for r in rows if not r["finite"]]
+    seeds = next((r["expert_seeds"] for r in rows if "expert_seeds" in r), 0)
     fig.suptitle("Put Bottle in Shelf: the bottle's swing in a loosened grasp (1.5 s hold, seeds 0-1)"
+                 + (f"; the whole expert on seeds 0-{seeds - 1} under each solver case" if seeds else "")
                  + (f"; non-finite: {', '.join(map(str, broken_rows))}" if broken_rows else ""), fontsize=10)
     fig.tight_layout()
     FIGURES.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,46 @@
+"""The task's whole expert under a stability sweep's settings: the run the sweeps add to their scripted trials
+(``insertion_stability.py``, ``pivot_stability.py``), because a setting can pass a trial and still lose the task."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from univtac_data.generators.tasks.base import ExpertContext, Task
+from univtac_data.generators.tasks.session import TaskSession
+
+
+@dataclass(frozen=True)
+class ExpertRun:
+    """One seed's expert run: its outcome, the first safety violation (None: safe throughout), the expert's
+    memory (what it decided, e.g. its attempts) and the object's largest slip in the hand, mm."""
+
+    seed: int
+    success: bool
+    safe: bool
+    finite: bool
+    first_violation: str | None
+    memory: dict[str, Any]
+    max_in_hand_slip_mm: float
+
+
+def whole_expert(task: Task, seed: int) -> ExpertRun:
+    """Run ``task``'s expert from ``seed`` to its end or the task's step limit, not recorded; a non-finite state
+    stops it and counts as a failure and a violation."""
+    session = TaskSession(task)
+    try:
+        state = session.reset(seed)
+        ctx = ExpertContext(session, session.rng)
+        finite = True
+        for step in task.expert(ctx):
+            if session.steps >= task.step_limit:
+                break
+            state = session.step(step.action, step.primitive)
+            if not session.sim.finite():
+                finite = False
+                break
+        return ExpertRun(seed, bool(finite and task.success(state)), bool(finite and session.safe), finite,
+                         session.first_violation() if finite else "non-finite state", dict(ctx.memory),
+                         float(session.max_in_hand_slip_mm))
+    finally:
+        session.close()

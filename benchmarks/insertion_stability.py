@@ -148,9 +148,10 @@ def run_expert_seed(row: dict[str, Any], seed: int) -> dict[str, Any]:
     period = max(1, round(0.002 / row["timestep_s"]))
     run = whole_expert(SweptTube(TaskConfig(cameras=False, timestep_s=row["timestep_s"], control_period_steps=period),
                                  row), seed)
-    return {"seed": seed, "success": run.success, "safe": run.safe, "attempts": int(run.memory["attempts"]),
-            "found_the_hole": bool(run.memory["inside"]), "max_in_hand_slip_mm": round(run.max_in_hand_slip_mm, 2),
-            "first_violation": run.first_violation}
+    # a run stopped before the expert's first move has no attempts in its memory
+    return {"seed": seed, "success": run.success, "safe": run.safe, "attempts": int(run.memory.get("attempts", 0)),
+            "found_the_hole": bool(run.memory.get("inside", False)),
+            "max_in_hand_slip_mm": round(run.max_in_hand_slip_mm, 2), "first_violation": run.first_violation}
 
 
 def label(row: dict[str, Any]) -> str:

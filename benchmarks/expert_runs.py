@@ -6,8 +6,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from univtac_data.generators.tasks.base import ExpertContext, Task
+from univtac_data.generators.tasks.base import ExpertContext, Task, TaskConfig
 from univtac_data.generators.tasks.session import TaskSession
+
+_TASK = TaskConfig()
+CONTROL_TICK_S = _TASK.timestep_s * _TASK.control_period_steps  # the tasks' controller tick (2 ms)
+
+
+def swept_config(timestep_s: float) -> TaskConfig:
+    """A task's configuration at a swept physics step, without cameras: the controller still ticks every
+    ``CONTROL_TICK_S`` (at least one step a tick), so a finer or coarser step changes the physics, not the
+    finger servos' rate."""
+    return TaskConfig(cameras=False, timestep_s=timestep_s,
+                      control_period_steps=max(1, round(CONTROL_TICK_S / timestep_s)))
 
 
 @dataclass(frozen=True)

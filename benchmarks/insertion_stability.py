@@ -36,7 +36,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib import ticker  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
-from expert_runs import whole_expert  # noqa: E402
+from expert_runs import swept_config, whole_expert  # noqa: E402
 
 from univtac_data.envs.evaluate import wilson_interval  # noqa: E402
 from univtac_data.generators.scene.geometry import quat_to_mat  # noqa: E402
@@ -145,9 +145,7 @@ def run_trial(row: dict[str, Any], seed: int) -> dict[str, Any]:
 def run_expert_seed(row: dict[str, Any], seed: int) -> dict[str, Any]:
     """The task's expert under ``row``'s settings from ``seed`` (the task's own layouts), not recorded; the
     controller ticks every 2 ms whatever the timestep, as in the task."""
-    period = max(1, round(0.002 / row["timestep_s"]))
-    run = whole_expert(SweptTube(TaskConfig(cameras=False, timestep_s=row["timestep_s"], control_period_steps=period),
-                                 row), seed)
+    run = whole_expert(SweptTube(swept_config(row["timestep_s"]), row), seed)
     # a run stopped before the expert's first move has no attempts in its memory
     return {"seed": seed, "success": run.success, "safe": run.safe, "attempts": int(run.memory.get("attempts", 0)),
             "found_the_hole": bool(run.memory.get("inside", False)),

@@ -31,6 +31,7 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
+from expert_runs import swept_config  # noqa: E402
 
 from univtac_data.generators.scene.threads import one_blas_thread  # noqa: E402
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig  # noqa: E402
@@ -85,8 +86,7 @@ class SweptKey(PullOutKey):
 
 
 def run_seed(setting: Setting, seed: int) -> dict[str, Any]:
-    period = max(1, round(0.002 / setting.timestep_s))
-    config = TaskConfig(cameras=False, timestep_s=setting.timestep_s, control_period_steps=period)
+    config = swept_config(setting.timestep_s)
     task = SweptKey(config, setting)
     session = TaskSession(task)
     try:
@@ -120,7 +120,8 @@ def run_seed(setting: Setting, seed: int) -> dict[str, Any]:
                 "overshoot_deg": corrections[0]["overshoot_deg"] if corrections else None,
                 "rise_mm": corrections[0]["rise_mm"] if corrections else None,
                 "max_indentation_mm": deepest, "peak_energy_j": peak_energy,
-                "us_per_physics_step": wall / max(1, session.steps * config.ticks_per_step * period) * 1e6}
+                "us_per_physics_step": wall / max(1, session.steps * config.ticks_per_step
+                                                  * config.control_period_steps) * 1e6}
     finally:
         session.close()
 

@@ -44,7 +44,7 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
-from expert_runs import whole_expert  # noqa: E402
+from expert_runs import swept_config, whole_expert  # noqa: E402
 
 from univtac_data.envs.evaluate import wilson_interval  # noqa: E402
 from univtac_data.generators.scene.contact_pairs import TASK_OPTION_XML  # noqa: E402
@@ -102,9 +102,7 @@ class SweptTask(PutBottleInShelf):
 def run_expert_seed(case: Case, seed: int) -> dict[str, object]:
     """The task's whole expert under ``case``'s solver options from ``seed``, not recorded; the controller ticks
     every 2 ms whatever the timestep, as in the task."""
-    period = max(1, round(0.002 / case.timestep_s))
-    run = whole_expert(SweptTask(case, TaskConfig(cameras=False, timestep_s=case.timestep_s,
-                                                  control_period_steps=period)), seed)
+    run = whole_expert(SweptTask(case, swept_config(case.timestep_s)), seed)
     return {"seed": seed, "success": run.success, "safe": run.safe, "finite": run.finite,
             "first_violation": run.first_violation}
 

@@ -89,8 +89,10 @@ def contact_sheet(frames: Sequence[object], path: str | Path, title: str = "") -
 
 
 def image_gallery(tiles: Sequence[tuple[np.ndarray, str]], path: str | Path, title: str = "",
-                  columns: int = 7) -> Path:
-    """Write a PNG grid of ``(image (H, W, 3) uint8, caption)`` tiles to ``path`` (one look at many episodes)."""
+                  columns: int | None = None) -> Path:
+    """Write a PNG grid of ``(image (H, W, 3) uint8, caption)`` tiles to ``path`` (one look at many episodes).
+    ``columns``: tiles a row (default: 7 tactile images, fewer as the tiles get wider, e.g. 3 for a camera
+    beside a tactile image)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -98,9 +100,12 @@ def image_gallery(tiles: Sequence[tuple[np.ndarray, str]], path: str | Path, tit
 
     if not tiles:
         raise ValueError("image_gallery needs at least one tile")
+    aspect = max(image.shape[1] / image.shape[0] for image, _ in tiles)  # width / height of the widest tile
+    if columns is None:
+        columns = min(7, max(1, round(9.3 / aspect)))
     columns = max(1, min(columns, len(tiles)))
     rows = -(-len(tiles) // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(2.6 * columns, 2.3 * rows + 0.5), squeeze=False)
+    fig, axes = plt.subplots(rows, columns, figsize=(1.95 * aspect * columns, 2.3 * rows + 0.5), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, (image, caption) in zip(axes.ravel(), tiles):

@@ -60,7 +60,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--frames", type=positive_int, default=4, help="frames shown, evenly spaced (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
     parser.add_argument("--gallery", action="store_true",
-                        help="one tile per episode (its deepest press) instead of one episode's frames")
+                        help="one tile per episode instead of one episode's frames: the pad at its deepest press, "
+                             "or for a task episode at the expert's first correction in touch, beside the head "
+                             "camera")
     parser.add_argument("--max-episodes", type=positive_int, default=42, metavar="N",
                         help="gallery: episodes shown, at least 1 (default 42)")
     parser.add_argument("--sensor", help=f"demo mode: sensor profile ({', '.join(SENSORS)})")
@@ -119,28 +121,64 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
     return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames)"
 
 
+def recorded_corrections(meta: Any) -> list[tuple[int, str]]:
+    """(frame, what) of each correction a task's expert recorded (``extra.task.memory.corrections``,
+    spec/format.md: the frame its ``step`` count was taken at), in order; empty for an indenter episode, a
+    task without corrections, or an ``extra`` that does not hold them (readers may ignore it, so a gallery
+    never fails on it)."""
+    try:
+        return [(min(max(int(c["step"]), 0), meta.n_frames - 1), str(c["what"]))
+                for c in meta.extra["task"]["memory"]["corrections"]]
+    except (KeyError, TypeError, ValueError):
+        return []
+
+
+def _gallery_tile(handle: Any, pad: str) -> tuple[np.ndarray, str, bool]:
+    """One episode's tile: I_marked of ``pad`` (the first pad if it has no such pad) at the first correction
+    the task's expert made while that pad touched (a gallery is for looking at touch), else at the deepest
+    press, with the first scene camera at that frame on its left when the episode has cameras. Returns (tile,
+    caption, whether it shows a correction)."""
+    from univtac_data.export.episode_video import resize_to_height
+
+    meta = handle.meta
+    key = f"tactile/{pad if pad in meta.pads else meta.pads[0]}/"
+    deepest_um = handle.read(key + "depth_um").reshape(meta.n_frames, -1).max(axis=1)
+    touching = [(frame, what) for frame, what in recorded_corrections(meta) if deepest_um[frame] > 0]
+    if touching:
+        frame, what = touching[0]
+        caption = f"{meta.name}, seed {meta.seed}: {what} (frame {frame})"
+    else:
+        frame = int(np.argmax(deepest_um))
+        caption = f"{meta.name} ({meta.sensor})" if meta.kind != "task" else f"{meta.name}, seed {meta.seed}"
+    marked = handle.read(key + "marked_rgb", frame)
+    cameras = [resize_to_height(handle.read(f"scene/cameras/{meta.cameras[0].name}/rgb", frame), marked.shape[0])
+               ] if meta.cameras else []
+    return np.concatenate([*cameras, marked], axis=1), caption, bool(touching)
+
+
 def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarray, str]], str, list[str]]:
-    """One tile per episode: I_marked at the frame of its deepest press. A damaged episode is skipped and
-    reported (the third value: one line each)."""
+    """One tile per episode (``_gallery_tile``). A damaged episode is skipped and reported (the third value:
+    one line each)."""
     dataset = Dataset.open(path)
     if not dataset.episode_ids:
         raise DatasetError(f"{path}: the dataset has no episodes")
-    tiles, failed = [], []
+    tiles, failed, corrections = [], [], 0
     for episode_id in dataset.episode_ids[:limit]:
         where = dataset.loc.url_of(dataset.index[episode_id].path)
         try:
             with dataset.open_episode(episode_id) as handle:
-                key = f"tactile/{pad if pad in handle.meta.pads else handle.meta.pads[0]}/"
-                deepest = int(np.argmax(handle.read(key + "depth_um").reshape(handle.meta.n_frames, -1).max(axis=1)))
-                tiles.append((handle.read(key + "marked_rgb", deepest), f"{handle.meta.name} ({handle.meta.sensor})"))
+                tile, caption, at_correction = _gallery_tile(handle, pad)
+            tiles.append((tile, caption))
+            corrections += at_correction
         except Exception as error:  # any reader error of a damaged file: skip the episode, report it
             text = str(error).splitlines()[0] if str(error) else type(error).__name__
             failed.append(text if text.startswith(where) else f"{where}: {type(error).__name__}: {text}")
     if not tiles:
         raise DatasetError(f"{path}: no episode could be read ({failed[0]})")
     shown = min(limit, len(dataset))
-    return tiles, f"{path}: {len(tiles)} of {len(dataset)} episodes, I_marked at each episode's deepest press", \
-        failed[: shown]
+    moment = ("the expert's first correction in touch (else the deepest press)" if corrections
+              else "each episode's deepest press")
+    return tiles, f"{path}: {len(tiles)} of {len(dataset)} episodes, I_marked at {moment}", failed[: shown]
 
 
 def _write_atomic(out: str, suffix: str, write: Any) -> Any:

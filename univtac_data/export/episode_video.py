@@ -17,7 +17,8 @@ from univtac_data.export.video import Mp4Writer
 BAND_PX = 22  # the text band above the tiles
 
 
-def _resize_to_height(rgb: np.ndarray, height: int) -> np.ndarray:
+def resize_to_height(rgb: np.ndarray, height: int) -> np.ndarray:
+    """An (h, w, 3) uint8 image scaled (bilinear) to ``height`` rows, its aspect kept."""
     if rgb.shape[0] == height:
         return rgb
     from PIL import Image
@@ -70,9 +71,9 @@ def write_episode_video(handle: Any, out: str, fps: int | None = None) -> tuple[
         for t in range(meta.n_frames):
             pads = [handle.read(f"tactile/{pad}/marked_rgb", t) for pad in meta.pads]
             height = height or pads[0].shape[0]
-            tiles = [_resize_to_height(handle.read(f"scene/cameras/{c.name}/rgb", t), height) for c in meta.cameras]
+            tiles = [resize_to_height(handle.read(f"scene/cameras/{c.name}/rgb", t), height) for c in meta.cameras]
             tiles += pads
-            tiles += [_resize_to_height(depth_colour(handle.read(f"tactile/{pad}/depth_um", t), deepest[pad]), height)
+            tiles += [resize_to_height(depth_colour(handle.read(f"tactile/{pad}/depth_um", t), deepest[pad]), height)
                       for pad in meta.pads]
             caption = frame_caption(meta, t, int(timestamps[t]), int(primitive[t]),
                                     {pad: float(forces[pad][t]) for pad in meta.pads})

@@ -1,5 +1,6 @@
-"""``univtac-data preview PATH --gallery``: one tile per episode; task episodes show the scene camera beside the
-pad at the expert's first correction made in touch."""
+"""``univtac-data preview``'s views of task episodes: ``--gallery`` tiles show the scene camera beside the pad
+at the expert's first correction made in touch; an episode's contact sheet spreads its frames over those where
+the pad touches."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 from factories import make_episode
 
 from univtac_data import Dataset
-from univtac_data.cli.preview import _gallery_tiles, recorded_corrections
+from univtac_data.cli.preview import _dataset_frames, _gallery_tiles, recorded_corrections
 from univtac_data.export.episode_video import resize_to_height
 from univtac_data.storage import DatasetWriter
 
@@ -80,3 +81,18 @@ def test_the_gallery_command_writes_a_png_of_task_tiles(tmp_path):
     with Image.open(out) as image:
         width, height = image.size
     assert width > 2 * height  # three wide tiles in one row
+
+
+def test_the_contact_sheet_spreads_its_frames_over_those_where_the_pad_touches(tmp_path):
+    writer = DatasetWriter.open(tmp_path / "ds", storage="hdf5", sensors=["gelsight_mini"])
+    writer.add(make_episode(n_frames=N_FRAMES, episode_id="ep0", kind="task", name="lift_can"))
+    untouched = make_episode(n_frames=N_FRAMES, episode_id="ep1", seed=1, kind="task", name="lift_can")
+    for name in ("depth_um", "contact_mask", "normal_force_n", "shear_force_n"):
+        untouched.arrays[f"tactile/left/{name}"][:] = 0
+    writer.add(untouched)
+
+    frames, title = _dataset_frames(str(tmp_path / "ds"), "ep0", 2, "left")
+    assert [f.title for f in frames] == ["frame 1", "frame 4"]  # frame 0 is before the touch
+    assert title == "ep0 (gelsight_mini, pad left, 5 frames; shown: frames 1-4, where the pad touches)"
+    frames, title = _dataset_frames(str(tmp_path / "ds"), "ep1", 2, "left")
+    assert [f.title for f in frames] == ["frame 0", "frame 4"] and title == "ep1 (gelsight_mini, pad left, 5 frames)"

@@ -57,7 +57,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="log the episode for the Rerun viewer: images, depth, markers as points, poses as "
                              "transforms (needs the [rerun] extra; open with `rerun FILE.rrd`)")
     parser.add_argument("--episode", help="episode id (default: the first)")
-    parser.add_argument("--frames", type=positive_int, default=4, help="frames shown, evenly spaced (default 4)")
+    parser.add_argument("--frames", type=positive_int, default=4, help="frames shown, evenly spaced over those where the pad touches (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
     parser.add_argument("--gallery", action="store_true",
                         help="one tile per episode instead of one episode's frames: the pad at its deepest press, "
@@ -110,7 +110,10 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
         if pad not in meta.pads:
             raise DatasetError(f"{path}: episode {episode_id!r} has no pad {pad!r} (pads: {', '.join(meta.pads)})")
         key = f"tactile/{pad}/"
-        picks = np.unique(np.linspace(0, meta.n_frames - 1, max(1, min(n, meta.n_frames))).round().astype(int))
+        # a task episode's pad touches for part of it: spread the frames over that span, not over the approach
+        touching = np.flatnonzero(handle.read(key + "normal_force_n") > 0.0)
+        first, last = (int(touching[0]), int(touching[-1])) if touching.size else (0, meta.n_frames - 1)
+        picks = np.unique(np.linspace(first, last, max(1, min(n, last - first + 1))).round().astype(int))
         ref = handle.read(key + "markers_ref_px")
         frames = [
             SheetFrame(handle.read(key + "marked_rgb", int(t)), handle.read(key + "pure_rgb", int(t)),
@@ -118,7 +121,8 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
                        handle.read(key + "markers_px", int(t)), f"frame {t}")
             for t in picks
         ]
-    return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames)"
+    span = f"; shown: frames {first}-{last}, where the pad touches" if touching.size else ""
+    return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames{span})"
 
 
 def recorded_corrections(meta: Any) -> list[tuple[int, str]]:

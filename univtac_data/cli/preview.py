@@ -111,7 +111,7 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
             raise DatasetError(f"{path}: episode {episode_id!r} has no pad {pad!r} (pads: {', '.join(meta.pads)})")
         key = f"tactile/{pad}/"
         # a task episode's pad touches for part of it: spread the frames over that span, not over the approach
-        touching = np.flatnonzero(handle.read(key + "normal_force_n") > 0.0)
+        touching = np.flatnonzero(_touches(handle, key))
         first, last = (int(touching[0]), int(touching[-1])) if touching.size else (0, meta.n_frames - 1)
         picks = np.unique(np.linspace(first, last, max(1, min(n, last - first + 1))).round().astype(int))
         ref = handle.read(key + "markers_ref_px")
@@ -123,6 +123,12 @@ def _dataset_frames(path: str, episode: str | None, n: int, pad: str) -> tuple[l
         ]
     span = f"; shown: frames {first}-{last}, where the pad touches" if touching.size else ""
     return frames, f"{episode_id} ({meta.sensor}, pad {pad}, {meta.n_frames} frames{span})"
+
+
+def _touches(handle: Any, key: str) -> np.ndarray:
+    """(T,) bool: the frames in which the pad under ``key`` ("tactile/left/") touches, from its normal force
+    (one number a frame, where the depth maps would be read whole)."""
+    return handle.read(key + "normal_force_n") > 0.0
 
 
 def recorded_corrections(meta: Any) -> list[tuple[int, str]]:
@@ -146,13 +152,13 @@ def _gallery_tile(handle: Any, pad: str) -> tuple[np.ndarray, str, bool]:
 
     meta = handle.meta
     key = f"tactile/{pad if pad in meta.pads else meta.pads[0]}/"
-    deepest_um = handle.read(key + "depth_um").reshape(meta.n_frames, -1).max(axis=1)
-    touching = [(frame, what) for frame, what in recorded_corrections(meta) if deepest_um[frame] > 0]
+    touches = _touches(handle, key)
+    touching = [(frame, what) for frame, what in recorded_corrections(meta) if touches[frame]]
     if touching:
         frame, what = touching[0]
         caption = f"{meta.name}, seed {meta.seed}: {what} (frame {frame})"
     else:
-        frame = int(np.argmax(deepest_um))
+        frame = int(np.argmax(handle.read(key + "depth_um").reshape(meta.n_frames, -1).max(axis=1)))
         caption = f"{meta.name} ({meta.sensor})" if meta.kind != "task" else f"{meta.name}, seed {meta.seed}"
     marked = handle.read(key + "marked_rgb", frame)
     cameras = [resize_to_height(handle.read(f"scene/cameras/{meta.cameras[0].name}/rgb", frame), marked.shape[0])

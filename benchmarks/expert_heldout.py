@@ -5,9 +5,11 @@ violations, and the same expert with its corrections switched off on the first o
                                         [--name expert_heldout]
 
 The experts were written and tuned against seeds 0-99 (the task tests run them); this script runs them from
-the evaluation seeds, 1,000,000 up (``univtac_data.envs.evaluate.EVAL_SEED_BASE``: the seeds ``univtac-data
-evaluate TASK --policy expert --seed 0`` scores and no demonstration uses), without cameras and not recorded
-(``run_expert(record=False)``: the cameras and the recording do not steer the expert). Each seed's outcome is
+the evaluation seeds, 1,000,000 up (``EVAL_SEED_BASE``: the layouts ``univtac-data evaluate TASK --seed 0``
+scores and no demonstration uses), as ``generate task`` runs them, without cameras and not recorded
+(``run_expert(record=False)``: the cameras and the recording do not steer the expert). ``evaluate --policy
+expert`` passes the same actions through the environment's float32 action space, so a marginal seed can end
+the other way there. Each seed's outcome is
 deterministic, so the worker count changes only the wall time. Every failure and violation is kept in the JSON
 with its seed, for anyone who wants to watch it (``univtac-data evaluate TASK --policy expert --seed K
 --episodes 1 --video DIR`` with K = seed - 1,000,000).

@@ -1,8 +1,8 @@
 """Every task's scripted expert on seeds it was never developed on: success with a 95 % Wilson interval, safety
 violations, and the same expert with its corrections switched off on the first of those seeds.
 
-    python benchmarks/expert_heldout.py [--tasks all] [--episodes 200] [--without 50] [--workers 2]
-                                        [--name expert_heldout]
+    python benchmarks/expert_heldout.py [--tasks all] [--episodes 200] [--without 50] [--first 0]
+                                        [--sensor gelsight_mini] [--workers 2] [--name expert_heldout]
 
 The experts were written and tuned against seeds 0-99 (the task tests run them); this script runs them from
 the evaluation seeds, 1,000,000 up (``EVAL_SEED_BASE``: the layouts ``univtac-data evaluate TASK --seed 0``
@@ -64,9 +64,11 @@ def chunked_jobs(tasks: list[str], episodes: int, without: int, first: int = 0) 
             for i in range(0, count, CHUNK)]
 
 
-def run_chunk(task: str, seeds: list[int], corrections: bool) -> list[dict[str, Any]]:
-    """The outcomes of ``task``'s expert from each of ``seeds`` (not recorded, no cameras)."""
-    config = TaskConfig(cameras=False)
+def run_chunk(task: str, seeds: list[int], corrections: bool, sensor: str = "gelsight_mini") \
+        -> list[dict[str, Any]]:
+    """The outcomes of ``task``'s expert from each of ``seeds`` with ``sensor``'s pads (not recorded, no
+    cameras)."""
+    config = TaskConfig(sensor=sensor, cameras=False)
     rows = []
     for seed in seeds:
         start = time.process_time()
@@ -76,16 +78,16 @@ def run_chunk(task: str, seeds: list[int], corrections: bool) -> list[dict[str, 
     return rows
 
 
-def run_jobs(jobs: list[tuple[str, list[int], bool]], workers: int) \
+def run_jobs(jobs: list[tuple[str, list[int], bool]], workers: int, sensor: str = "gelsight_mini") \
         -> Iterator[tuple[tuple[str, list[int], bool], list[dict[str, Any]]]]:
     """Each job with its outcomes, as they finish: in this process for one worker, else in ``workers``
     spawned processes (a fresh interpreter each: no forked MuJoCo or numba state)."""
     if workers <= 1:
         for job in jobs:
-            yield job, run_chunk(*job)
+            yield job, run_chunk(*job, sensor)
         return
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(run_chunk, *job): job for job in jobs}
+        futures = {pool.submit(run_chunk, *job, sensor): job for job in jobs}
         for future in as_completed(futures):
             yield futures[future], future.result()
 
@@ -103,7 +105,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                          for r in sorted(rows, key=lambda r: r["seed"]) if not r["success"] or not r["safe"]]}
 
 
-def chart(results: dict[str, dict[str, Any]], name: str, seeds: str) -> None:
+def chart(results: dict[str, dict[str, Any]], name: str, seeds: str, sensor: str) -> None:
     tasks = list(results)
     fig, ax = plt.subplots(figsize=(8.5, 0.55 * len(tasks) + 1.4))
     y = range(len(tasks))
@@ -129,7 +131,7 @@ def chart(results: dict[str, dict[str, Any]], name: str, seeds: str) -> None:
     ax.set_xlim(0, 125)
     ax.set_xlabel(f"success on held-out seeds ({seeds}), %, with 95 % Wilson interval")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09 - 0.6 / len(tasks)), ncol=3, fontsize=7)
-    ax.set_title("The scripted experts on seeds they were never tuned on", fontsize=10)
+    ax.set_title(f"The scripted experts on seeds they were never tuned on ({sensor})", fontsize=10)
     fig.tight_layout()
     fig.savefig(FIGURES / f"{name}.png", dpi=120)
     plt.close(fig)
@@ -143,6 +145,8 @@ def main() -> int:
                         help="of those seeds, how many also run with the corrections switched off (0: none)")
     parser.add_argument("--first", type=int, default=0,
                         help="start at evaluation seed 1,000,000 + FIRST (a fresh block after the expert changed)")
+    parser.add_argument("--sensor", default="gelsight_mini",
+                        help="the pads' sensor (the experts were developed on gelsight_mini)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--name", default="expert_heldout", help="file name of the JSON and the chart")
     args = parser.parse_args()
@@ -156,7 +160,7 @@ def main() -> int:
     info = machine(threads_used=args.workers)
     rows: dict[tuple[str, bool], list[dict[str, Any]]] = {}
     start = time.perf_counter()
-    for (task, _, corrections), outcomes in tqdm(run_jobs(jobs, args.workers), total=len(jobs),
+    for (task, _, corrections), outcomes in tqdm(run_jobs(jobs, args.workers, args.sensor), total=len(jobs),
                                                    desc="expert seeds", unit="chunk"):
         rows.setdefault((task, corrections), []).extend(outcomes)
     results: dict[str, dict[str, Any]] = {}
@@ -168,11 +172,11 @@ def main() -> int:
     out = {"machine": info, "seeds": f"{EVAL_SEED_BASE} + k, {args.first} <= k < {last}",
            "without_corrections_seeds": f"{EVAL_SEED_BASE} + k, {args.first} <= k < {last_without}",
            "nothing_to_switch_off": [t for t in tasks if t in NOTHING_TO_SWITCH_OFF],
-           "config": "TaskConfig(cameras=False), not recorded", "goal": GOAL,
+           "config": f"TaskConfig(sensor={args.sensor!r}, cameras=False), not recorded", "goal": GOAL,
            "wall_s": time.perf_counter() - start, "tasks": results}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.name}.json").write_text(json.dumps(out, indent=1) + "\n")
-    chart(results, args.name, f"{EVAL_SEED_BASE + args.first:,} to {EVAL_SEED_BASE + last - 1:,}")
+    chart(results, args.name, f"{EVAL_SEED_BASE + args.first:,} to {EVAL_SEED_BASE + last - 1:,}", args.sensor)
     for task, r in results.items():
         s, w = r["expert"], r.get("without_corrections")
         lo, hi = s["wilson95"]

@@ -97,8 +97,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(rows)
     successes = sum(r["success"] for r in rows)
     lo, hi = wilson_interval(successes, n)
+    kept = sum(r["success"] and r["safe"] for r in rows)  # what ``generate task`` keeps as a demonstration
+    kept_lo, kept_hi = wilson_interval(kept, n)
     return {"n": n, "successes": successes, "success_rate": successes / n if n else 0.0, "wilson95": [lo, hi],
-            "unsafe": sum(not r["safe"] for r in rows),
+            "unsafe": sum(not r["safe"] for r in rows), "kept": kept, "kept_wilson95": [kept_lo, kept_hi],
             "mean_steps": sum(r["steps"] for r in rows) / n if n else 0.0,
             "cpu_s_per_episode": sum(r["cpu_s"] for r in rows) / n if n else 0.0,
             "failures": [{k: r[k] for k in ("seed", "steps", "safe", "violation")}
@@ -181,7 +183,7 @@ def main() -> int:
         s, w = r["expert"], r.get("without_corrections")
         lo, hi = s["wilson95"]
         line = (f"{task:22s} expert {s['successes']}/{s['n']} = {s['success_rate']:.1%} ({lo:.1%}-{hi:.1%}), "
-                f"unsafe {s['unsafe']}")
+                f"unsafe {s['unsafe']}, kept (successful and safe) {s['kept']}/{s['n']}")
         if w:
             line += f"; without corrections {w['successes']}/{w['n']} = {w['success_rate']:.1%}"
         print(line)

@@ -40,7 +40,7 @@ def test_summary_counts_failures_and_violations():
             {"seed": 5, "success": False, "safe": True, "steps": 300, "violation": None, "cpu_s": 3.0},
             {"seed": 6, "success": True, "safe": False, "steps": 200, "violation": "slip", "cpu_s": 2.0}]
     s = expert_heldout.summarise(rows)
-    assert (s["n"], s["successes"], s["unsafe"]) == (3, 2, 1)
+    assert (s["n"], s["successes"], s["unsafe"], s["kept"]) == (3, 2, 1, 1)  # kept: successful and safe
     assert s["success_rate"] == pytest.approx(2 / 3) and s["mean_steps"] == pytest.approx(200)
     lo, hi = s["wilson95"]
     assert lo < 2 / 3 < hi

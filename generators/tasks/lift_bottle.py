@@ -21,7 +21,7 @@ Randomisation (seeded)
     sides: across it, the fingers close centred, and a bottle one pad pushes across the table rolls on the gel)
     and of the yaw by U(-2, 2) deg; the set-up's pitch U(3, 15) deg.
 Expert (closed loop; the signal behind each correction is recorded in ``memory['corrections']``)
-    descend to the axis height, tactile grasp to 0.9 mm (0.54 mm on the GF225 and Xense WS: Put Bottle in
+    descend to the axis height, tactile grasp to 0.9 mm (0.36 mm on the GF225 and Xense WS: Put Bottle in
     Shelf's ``grasp_law``; the kit's 0.5 mm lets the bottle twist in the hand by a millimetre of gel slip
     while it turns); read the in-hand
     angle from the strips (``bottle.in_hand_from_touch``); lift 6 mm; turn the hand about the closing axis

@@ -18,8 +18,13 @@ Expert (closed loop; the signal behind each correction is recorded in ``memory['
     limit is 0.8 mm); **squareness correction**: the two pads' contact centroids along the can (pad x) differ by
     ``delta`` mm when the fingers close at an angle ``e = atan(delta / d)`` to the can's diameter ``d``
     (read off the pads' distance); if ``|e| > 3 deg`` open 1 cm, turn the gripper by ``e`` about the vertical,
-    re-grasp (at most twice); lift 12 cm at 10 cm/s; turn 90 deg about the closing axis, the way that brings
-    the top up; hold 0.4 s.
+    re-grasp (at most twice). **Patch off the image**: when both pads press (the grasp law's indentation)
+    but neither image shows a patch, the can touches the gel only beyond the imaged area (the GF225 images
+    23.5 of its 27 mm gel, so a can more than about 10 deg from square) and which way it crosses is unknown:
+    open 1 cm, turn 12 deg (the middle of the camera's error) and re-grasp; if still unseen, turn back 24 deg
+    (at most these two turns; recorded as ``grasp squareness, patch off the image``). The Mini and the Xense
+    WS image their whole gel, so this never happens there. Lift 12 cm at 10 cm/s; turn 90 deg about the
+    closing axis, the way that brings the top up; hold 0.4 s.
 Success
     can centre at least 10 cm above where it lay and its axis upright: axis . z > 0.99 (8.1 deg).
 Safety (per step; a violation makes the rollout invalid)
@@ -28,7 +33,7 @@ Safety (per step; a violation makes the rollout invalid)
 Step limit
     300 policy steps (6 s at 50 Hz).
 Version history
-    v0: first version.
+    v0: first version (the environment). Its expert since: the turn when the patch is off the image (GF225).
 """
 
 from __future__ import annotations
@@ -54,6 +59,8 @@ CANS = {  # diameter m -> (length m, mass kg)
 }
 LIFT_M = 0.12
 SQUARE_TOLERANCE_RAD = math.radians(3.0)
+BLIND_TURN_RAD = math.radians(12.0)  # the middle of the camera's 6-18 deg yaw error
+MAX_BLIND_TURNS = 2
 
 
 def squareness_from_touch(left: TouchReading, right: TouchReading, pad_width_mm: float) -> float:
@@ -138,13 +145,26 @@ class LiftCan(Task):
         r = layout["diameter_m"] / 2
         law = GraspLaw(threshold_mm=grasp_depth_mm(self.profile))
         yield from move_to(ctx, ctx.target[:3] - np.array([0, 0, 0.06]), width=2 * r + 0.012, speed_m_s=0.12)
-        for attempt in range(3):
+        blind = 0
+        for attempt in range(3 + MAX_BLIND_TURNS):
             yield from close_until(ctx, law)
             touch = ctx.touch()
+            if not (touch["left"].touching or touch["right"].touching) and ctx.memory["grasped"] \
+                    and ctx.corrections_enabled and blind < MAX_BLIND_TURNS:
+                # both pads press (the grasp law's reading) but neither image shows a patch: the can crosses
+                # the pads so far from square that it touches them only beyond the imaged area (the GF225
+                # images 23.5 of its 27 mm gel). Which way is unknown: turn one way, then back past the start
+                angle = BLIND_TURN_RAD * (1 if blind == 0 else -2)
+                blind += 1
+                ctx.correction("grasp squareness, patch off the image", "both pads press (indentation) but "
+                               "neither image shows a contact patch", angle_deg=math.degrees(angle), blind_turn=blind)
+                yield from open_to(ctx, ctx.target[7] + 0.012, primitive="regrasp")
+                yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp")
+                continue
             if not (touch["left"].touching and touch["right"].touching):
                 break
             angle = squareness_from_touch(touch["left"], touch["right"], self.profile.gel_width_mm)
-            if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt == 2 or not ctx.corrections_enabled:
+            if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt - blind == 2 or not ctx.corrections_enabled:
                 break
             ctx.correction("grasp squareness", "contact patch depth gradient and centroid along the can",
                            angle_deg=math.degrees(angle), patch_span_mm=touch["left"].span_x_mm)

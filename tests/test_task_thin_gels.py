@@ -1,0 +1,53 @@
+"""The experts on the sensors they were not developed on (GF225, Xense WS): thinner gels, safe only to 0.8 mm, and
+the GF225's image narrower than its gel. Seeds from 100 up: neither the task tests' nor the evaluation's."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
+from univtac_data.generators.tasks.put_bottle_in_shelf import grasp_law
+from univtac_data.schema.sensors import get_sensor
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def outcome(task: str, sensor: str, seed: int):
+    return run_expert(TaskEpisodeSpec(task, seed, TaskConfig(cameras=False, sensor=sensor)), record=False)
+
+
+def test_the_bottle_grasp_is_shallower_on_the_thin_gels():
+    assert grasp_law(get_sensor("gelsight_mini")).threshold_mm == pytest.approx(0.9)
+    for sensor in ("gf225", "xense_ws"):
+        law = grasp_law(get_sensor(sensor))
+        assert law.threshold_mm == pytest.approx(0.36) and law.threshold_mm < get_sensor(sensor).safe_indentation_mm
+
+
+@pytest.mark.parametrize("task,sensor,seed", [("lift_bottle", "gf225", 103), ("lift_bottle", "xense_ws", 103),
+                                              ("put_bottle_in_shelf", "gf225", 104)])
+def test_a_bottle_held_on_a_thin_gel_stays_within_its_safe_indentation(task, sensor, seed):
+    # each of these seeds pressed a pad past 0.8 mm with the Mini's grasp depth factor (0.54 mm on these gels)
+    o = outcome(task, sensor, seed)
+    assert o.safe, o.violation
+    assert o.success
+
+
+def test_lift_can_on_the_gf225_turns_when_the_patch_is_off_the_image():
+    # the can crosses the pads so far from square that it touches the GF225's gel only beyond its imaged 23.5 mm:
+    # both pads press, neither image shows a patch; a turn brings the patch into view, then the squareness
+    # correction reads it
+    o = outcome("lift_can", "gf225", 102)
+    whats = [c["what"] for c in o.memory["corrections"]]
+    assert whats[0] == "grasp squareness, patch off the image"
+    assert "grasp squareness" in whats[1:]
+    assert o.success and o.safe
+
+
+def test_lift_can_on_the_mini_never_turns_blind():
+    # the Mini images its whole gel: a grasped can always shows a patch there
+    for seed in range(100, 110):
+        o = outcome("lift_can", "gelsight_mini", seed)
+        assert not any("off the image" in c["what"] for c in o.memory["corrections"])

@@ -22,8 +22,8 @@ Expert (closed loop; the signal behind each correction is recorded in ``memory['
     but neither image shows a patch, the can touches the gel only beyond the imaged area (the GF225 images
     23.5 of its 27 mm gel, so a can more than about 10 deg from square) and which way it crosses is unknown:
     open 1 cm, turn 12 deg (the middle of the camera's error) and re-grasp; if still unseen, turn back 24 deg
-    (at most these two turns; recorded as ``grasp squareness, patch off the image``). The Mini and the Xense
-    WS image their whole gel, so this never happens there. Lift 12 cm at 10 cm/s; turn 90 deg about the
+    (at most these two turns; recorded as ``grasp squareness, patch off the image``). The Mini images all of
+    its gel and the Xense WS nearly all (29.3 of 29.37 mm), so this does not happen there. Lift 12 cm at 10 cm/s; turn 90 deg about the
     closing axis, the way that brings the top up; hold 0.4 s.
 Success
     can centre at least 10 cm above where it lay and its axis upright: axis . z > 0.99 (8.1 deg).

@@ -9,10 +9,9 @@ the evaluation seeds, 1,000,000 up (``EVAL_SEED_BASE``: the layouts ``univtac-da
 scores and no demonstration uses), as ``generate task`` runs them, without cameras and not recorded
 (``run_expert(record=False)``: the cameras and the recording do not steer the expert). ``evaluate --policy
 expert`` passes the same actions through the environment's float32 action space, so a marginal seed can end
-the other way there. Each seed's outcome is
-deterministic, so the worker count changes only the wall time. Every failure and violation is kept in the JSON
-with its seed, for anyone who wants to watch it (``univtac-data evaluate TASK --policy expert --seed K
---episodes 1 --video DIR`` with K = seed - 1,000,000).
+the other way there. Each seed's outcome is deterministic, so the worker count changes only the wall time.
+Every failure and violation is kept in the JSON with its seed, for anyone who wants to watch it
+(``univtac-data evaluate TASK --policy expert --seed K --episodes 1 --video DIR`` with K = seed - 1,000,000).
 
 Writes benchmarks/results/NAME.json and docs/figures/NAME.png (``--name``, default expert_heldout).
 """
@@ -37,6 +36,7 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 from common import FIGURES, RESULTS, machine  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
@@ -44,6 +44,7 @@ from univtac_data.envs.evaluate import wilson_interval  # noqa: E402
 from univtac_data.generators.tasks.base import EVAL_SEED_BASE, TaskConfig  # noqa: E402
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert  # noqa: E402
 from univtac_data.generators.tasks.registry import TASK_NAMES  # noqa: E402
+from univtac_data.schema.sensors import SENSORS  # noqa: E402
 
 GOAL = 0.90  # the task issues' expert success goal (issues 17 and 18, and the first tasks')
 CHUNK = 10  # seeds a job: small enough to balance the workers, large enough to pay the scene's start-up
@@ -74,7 +75,8 @@ def run_chunk(task: str, seeds: list[int], corrections: bool, sensor: str = "gel
         start = time.process_time()
         outcome = run_expert(TaskEpisodeSpec(task, seed, config), record=False, corrections=corrections)
         rows.append({"seed": seed, "success": outcome.success, "safe": outcome.safe, "steps": outcome.steps,
-                     "violation": outcome.violation, "cpu_s": time.process_time() - start})
+                     "violation": outcome.violation, "in_hand_slip_mm": outcome.max_in_hand_slip_mm,
+                     "cpu_s": time.process_time() - start})
     return rows
 
 
@@ -102,12 +104,17 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return {"n": n, "successes": successes, "success_rate": successes / n if n else 0.0, "wilson95": [lo, hi],
             "unsafe": sum(not r["safe"] for r in rows), "kept": kept, "kept_wilson95": [kept_lo, kept_hi],
             "mean_steps": sum(r["steps"] for r in rows) / n if n else 0.0,
+            # the held object's largest move in the gripper frame, per run: min, median, max (mm)
+            "in_hand_slip_mm": [float(v) for v in np.percentile([r["in_hand_slip_mm"] for r in rows], (0, 50, 100))]
+            if n else [],
             "cpu_s_per_episode": sum(r["cpu_s"] for r in rows) / n if n else 0.0,
             "failures": [{k: r[k] for k in ("seed", "steps", "safe", "violation")}
                          for r in sorted(rows, key=lambda r: r["seed"]) if not r["success"] or not r["safe"]]}
 
 
 def chart(results: dict[str, dict[str, Any]], name: str, seeds: str, sensor: str) -> None:
+    """Per task, the share of runs ``generate task`` keeps (successful and safe) with its interval, as shipped
+    and with the corrections switched off."""
     tasks = list(results)
     fig, ax = plt.subplots(figsize=(8.5, 0.55 * len(tasks) + 1.4))
     y = range(len(tasks))
@@ -116,22 +123,23 @@ def chart(results: dict[str, dict[str, Any]], name: str, seeds: str, sensor: str
         rates, low, high = [], [], []
         for task in tasks:
             s = results[task].get(key)
-            rate = s["success_rate"] if s else 0.0
+            rate = s["kept"] / s["n"] if s else 0.0
             rates.append(100 * rate)
-            low.append(100 * (rate - s["wilson95"][0]) if s else 0.0)
-            high.append(100 * (s["wilson95"][1] - rate) if s else 0.0)
+            low.append(100 * (rate - s["kept_wilson95"][0]) if s else 0.0)
+            high.append(100 * (s["kept_wilson95"][1] - rate) if s else 0.0)
         ax.barh([k + offset for k in y], rates, height=0.38, color=colour, label=label,
                 xerr=[low, high], error_kw={"ecolor": "black", "capsize": 2, "lw": 0.8})
     for k, task in enumerate(tasks):
         s = results[task]["expert"]
-        ax.text(101, k - 0.2, f"{s['successes']}/{s['n']}, unsafe {s['unsafe']}", va="center", fontsize=7)
+        ax.text(101, k - 0.2, f"{s['kept']}/{s['n']}, unsafe {s['unsafe']}", va="center", fontsize=7)
         w = results[task].get("without_corrections")
-        ax.text(101, k + 0.2, f"{w['successes']}/{w['n']}" if w else "nothing to switch off", va="center", fontsize=7)
+        note = f"{w['kept']}/{w['n']}" if w else "nothing to switch off" if task in NOTHING_TO_SWITCH_OFF else "not run"
+        ax.text(101, k + 0.2, note, va="center", fontsize=7)
     ax.axvline(100 * GOAL, color="grey", ls="--", lw=0.8, label=f"goal {100 * GOAL:.0f} %")
     ax.set_yticks(list(y), tasks)
     ax.invert_yaxis()
     ax.set_xlim(0, 125)
-    ax.set_xlabel(f"success on held-out seeds ({seeds}), %, with 95 % Wilson interval")
+    ax.set_xlabel(f"kept (successful and safe) on held-out seeds ({seeds}), %, with 95 % Wilson interval")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09 - 0.6 / len(tasks)), ncol=3, fontsize=7)
     ax.set_title(f"The scripted experts on seeds they were never tuned on ({sensor})", fontsize=10)
     fig.tight_layout()
@@ -147,11 +155,17 @@ def main() -> int:
                         help="of those seeds, how many also run with the corrections switched off (0: none)")
     parser.add_argument("--first", type=int, default=0,
                         help="start at evaluation seed 1,000,000 + FIRST (a fresh block after the expert changed)")
-    parser.add_argument("--sensor", default="gelsight_mini",
+    parser.add_argument("--sensor", default="gelsight_mini", choices=sorted(SENSORS),
                         help="the pads' sensor (the experts were developed on gelsight_mini)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--name", default="expert_heldout", help="file name of the JSON and the chart")
     args = parser.parse_args()
+    for name in ("episodes", "workers"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1 (got {getattr(args, name)})")
+    for name in ("without", "first"):
+        if getattr(args, name) < 0:
+            parser.error(f"--{name} must be 0 or more (got {getattr(args, name)})")
     tasks = list(TASK_NAMES) if args.tasks == "all" else args.tasks.split(",")
     unknown = sorted(set(tasks) - set(TASK_NAMES))
     if unknown:

@@ -36,12 +36,16 @@ def test_jobs_cover_the_held_out_seeds_once():
 
 
 def test_summary_counts_failures_and_violations():
-    rows = [{"seed": 7, "success": True, "safe": True, "steps": 100, "violation": None, "cpu_s": 1.0},
-            {"seed": 5, "success": False, "safe": True, "steps": 300, "violation": None, "cpu_s": 3.0},
-            {"seed": 6, "success": True, "safe": False, "steps": 200, "violation": "slip", "cpu_s": 2.0}]
+    rows = [{"seed": 7, "success": True, "safe": True, "steps": 100, "violation": None, "in_hand_slip_mm": 1.0,
+             "cpu_s": 1.0},
+            {"seed": 5, "success": False, "safe": True, "steps": 300, "violation": None, "in_hand_slip_mm": 3.0,
+             "cpu_s": 3.0},
+            {"seed": 6, "success": True, "safe": False, "steps": 200, "violation": "slip", "in_hand_slip_mm": 12.0,
+             "cpu_s": 2.0}]
     s = expert_heldout.summarise(rows)
     assert (s["n"], s["successes"], s["unsafe"], s["kept"]) == (3, 2, 1, 1)  # kept: successful and safe
     assert s["success_rate"] == pytest.approx(2 / 3) and s["mean_steps"] == pytest.approx(200)
+    assert s["in_hand_slip_mm"] == pytest.approx([1.0, 3.0, 12.0])  # min, median, max
     lo, hi = s["wilson95"]
     assert lo < 2 / 3 < hi
     # every seed that failed or was unsafe, in seed order, so it can be replayed
@@ -65,3 +69,13 @@ def test_an_unknown_task_is_refused(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["expert_heldout.py", "--tasks", "lift_cup"])
     assert expert_heldout.main() == 2
     assert "unknown task(s) lift_cup" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,message", [(["--sensor", "digit"], "invalid choice: 'digit'"),
+                                          (["--episodes", "0"], "--episodes must be at least 1"),
+                                          (["--first", "-1"], "--first must be 0 or more")])
+def test_bad_options_get_a_one_line_error(monkeypatch, capsys, args, message):
+    monkeypatch.setattr(sys, "argv", ["expert_heldout.py", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        expert_heldout.main()
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err

@@ -62,6 +62,7 @@ class ExpertOutcome:
     violation: str | None
     memory: dict[str, Any]
     episode: Episode | None = None
+    max_in_hand_slip_mm: float = 0.0  # the held object's largest move in the gripper frame, mm (a safety rule)
 
 
 def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool = True) -> ExpertOutcome:
@@ -80,7 +81,8 @@ def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool 
             state = session.step(step.action, step.primitive)
         success = task.success(state)
         memory = _jsonable(ctx.memory)
-        outcome = ExpertOutcome(spec.seed, bool(success), session.safe, session.steps, session.first_violation(), memory)
+        outcome = ExpertOutcome(spec.seed, bool(success), session.safe, session.steps, session.first_violation(), memory,
+                                max_in_hand_slip_mm=float(session.max_in_hand_slip_mm))
         if record:
             with one_blas_thread():
                 outcome.episode = _episode(spec, session, outcome)

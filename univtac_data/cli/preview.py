@@ -57,7 +57,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         help="log the episode for the Rerun viewer: images, depth, markers as points, poses as "
                              "transforms (needs the [rerun] extra; open with `rerun FILE.rrd`)")
     parser.add_argument("--episode", help="episode id (default: the first)")
-    parser.add_argument("--frames", type=positive_int, default=4, help="frames shown, evenly spaced over those where the pad touches (default 4)")
+    parser.add_argument("--frames", type=positive_int, default=4,
+                        help="frames shown, evenly spaced over those where the pad touches (default 4)")
     parser.add_argument("--pad", choices=("left", "right"), default="left", help="which pad (default left)")
     parser.add_argument("--gallery", action="store_true",
                         help="one tile per episode instead of one episode's frames: the pad at its deepest press, "

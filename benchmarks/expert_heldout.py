@@ -139,7 +139,7 @@ def chart(results: dict[str, dict[str, Any]], name: str, seeds: str, sensor: str
     ax.set_yticks(list(y), tasks)
     ax.invert_yaxis()
     ax.set_xlim(0, 125)
-    ax.set_xlabel(f"kept (successful and safe) on held-out seeds ({seeds}), %, with 95 % Wilson interval")
+    ax.set_xlabel(f"kept (successful and safe), % of held-out seeds {seeds}; 95 % Wilson interval")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09 - 0.6 / len(tasks)), ncol=3, fontsize=7)
     ax.set_title(f"The scripted experts on seeds they were never tuned on ({sensor})", fontsize=10)
     fig.tight_layout()

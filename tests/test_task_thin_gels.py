@@ -3,6 +3,7 @@ the GF225's image narrower than its gel. Seeds from 100 up: neither the task tes
 
 from __future__ import annotations
 
+import math
 import os
 
 import pytest
@@ -51,3 +52,21 @@ def test_lift_can_on_the_mini_never_turns_blind():
     for seed in range(100, 110):
         o = outcome("lift_can", "gelsight_mini", seed)
         assert not any("off the image" in c["what"] for c in o.memory["corrections"])
+
+
+@pytest.mark.parametrize("seed", [106, 136])
+def test_a_quick_swing_keeps_the_bottle_from_sliding_down_the_gf225(seed, monkeypatch):
+    # the GF225's 29 mm contact strip resists the turn more than the Mini's 20.75 mm, so the loose bottle turns
+    # later and slides down the pads for as long as it is loose: the slower swing (0.03 mm and 1.5 deg a step)
+    # slid these seeds' bottles past the task's 10 mm
+    from univtac_data.generators.tasks import put_bottle_in_shelf as put_bottle
+
+    quick = outcome("put_bottle_in_shelf", "gf225", seed)
+    assert quick.success and quick.safe, quick.violation
+    assert quick.max_in_hand_slip_mm < put_bottle.PutBottleInShelf.max_in_hand_slip_mm
+    monkeypatch.setattr(put_bottle, "PIVOT_STEP_M", 0.00003)
+    monkeypatch.setattr(put_bottle, "PIVOT_RATE_RAD", math.radians(1.5))
+    monkeypatch.setattr(put_bottle, "PIVOT_FAST_RATE_RAD", math.radians(3.0))
+    slow = outcome("put_bottle_in_shelf", "gf225", seed)
+    assert slow.max_in_hand_slip_mm > put_bottle.PutBottleInShelf.max_in_hand_slip_mm > quick.max_in_hand_slip_mm
+    assert not slow.safe

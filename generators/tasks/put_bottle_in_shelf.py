@@ -24,10 +24,12 @@ Expert (closed loop; the signal behind each correction is recorded in ``memory['
     **Swing upright (controlled slip)**, in 20 ms steps (at another rate the per-step numbers below are scaled
     to the same speeds and times): each step, the pads' contact strips give the bottle's axis in the
     gripper frame (``bottle.in_hand_from_touch``) and, with the hand's orientation, its tilt from vertical; while
-    it turns by less than 1.5 deg a step, open by 0.2 mm while the shallower pad presses more than 0.3 mm and by
-    0.03 mm below that; when it turns faster than 3 deg a step or the press falls below 0.09 mm (the weight
-    must still hang on friction), close by 0.03 mm; once the tilt is under 5 deg, or it swung through upright,
-    or it turns by less than 0.15 deg a step for 8 steps at the loosest press, grip again to 0.4 mm.
+    it turns by less than 6 deg a step, open by 0.2 mm while the shallower pad presses more than 0.3 mm and by
+    0.15 mm below that; when it turns faster than 12 deg a step or the press falls below 0.09 mm (the weight
+    must still hang on friction), close by 0.15 mm; once the tilt is under 5 deg, or under 15 deg and turning
+    less than 0.3 deg a step, or it swung through upright, or it turns by less than 0.15 deg a step for 8 steps
+    at the loosest press, grip again to 0.8 times the kit's grasp depth (0.4 mm on the Mini). Quick, because
+    a loose bottle slides down the pads for as long as it is loose (the more, the longer the contact strip).
     Recorded: the tilt before and after (from touch), the opening given up (mm) and the steps.
     **Place from the in-hand pose**: where the strips cross the pads (their centroids, with the strip angle)
     gives the bottle axis's offset from the gripper centre; the hand is aimed so that the axis, not the hand,
@@ -104,12 +106,19 @@ THIN_GEL_GRIP_FACTOR = 1.2
 REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright
 # the swing (controlled slip), per 20 ms policy step (50 Hz); at other rates scaled by ctx.step_scale
 PIVOT_DONE_RAD = math.radians(5.0)
+# under this tilt and hardly turning, grip again: a bottle leaning this much still stands up in the cavity, and
+# every step at the loosest press slides it further down the pads
+PIVOT_NEAR_RAD = math.radians(15.0)
 PIVOT_MOVING_RAD = math.radians(0.3)  # turning at least this much a step: leave the grip as it is
 PIVOT_FAST_STEP_M = 0.0002  # opening change a step while the pads still press deeper than PIVOT_FAST_ABOVE_MM, m
 PIVOT_FAST_ABOVE_MM = 0.3
-PIVOT_STEP_M = 0.00003  # opening change a step near the press where the bottle turns, m
-PIVOT_RATE_RAD = math.radians(1.5)  # wanted turn a step: loosen while slower
-PIVOT_FAST_RATE_RAD = math.radians(3.0)  # tighten while faster
+# a quick swing: the loose bottle slides down the pads for as long as the press is light, and the more the longer
+# the contact strip resists the turn (the GF225's 29 mm gel against the Mini's 20.75 mm): at 0.03 mm and 1.5 deg
+# a step the GF225's swing slid a bottle a median 8.6 mm (up to 13.9: 16 of seeds 100-159 over the task's 10 mm),
+# at 0.15 mm and 6 deg 4.2 (up to 9.4, seeds 100-299; the Mini 4.1 -> 2.1-2.3, the Xense WS 3.0 -> 2.0)
+PIVOT_STEP_M = 0.00015  # opening change a step near the press where the bottle turns, m
+PIVOT_RATE_RAD = math.radians(6.0)  # wanted turn a step: loosen while slower
+PIVOT_FAST_RATE_RAD = math.radians(12.0)  # tighten while faster
 PIVOT_MIN_DEPTH_MM = 0.09  # never looser than this: friction must still carry the bottle's weight
 PIVOT_STALL_STEPS = 8  # this many steps slower than PIVOT_CREEP_RAD once turned a good way: stopped
 PIVOT_CREEP_RAD = math.radians(0.15)
@@ -256,6 +265,8 @@ class PutBottleInShelf(Task):
                 break
             if rate < -moving and tilt < math.radians(15):
                 break  # swung through upright: grip where it is
+            if tilt < PIVOT_NEAR_RAD and rate < moving:
+                break  # hardly turning and near enough for the place: every loose step slides it down the pads
             previous = tilt
             action = ctx.target.copy()
             if depth < PIVOT_MIN_DEPTH_MM or rate > too_fast:

@@ -6,11 +6,15 @@ from __future__ import annotations
 import math
 import os
 
+import numpy as np
 import pytest
 
 from univtac_data.generators.tasks.base import TaskConfig
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
+from univtac_data.generators.scene.touch import TouchReading
+from univtac_data.generators.tasks.lift_can import patch_at_image_edge, squareness_from_touch
 from univtac_data.generators.tasks.put_bottle_in_shelf import grasp_law
+from univtac_data.generators.tasks.registry import make_task
 from univtac_data.schema.sensors import get_sensor
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -70,3 +74,28 @@ def test_a_quick_swing_keeps_the_bottle_from_sliding_down_the_gf225(seed, monkey
     slow = outcome("put_bottle_in_shelf", "gf225", seed)
     assert slow.max_in_hand_slip_mm > put_bottle.PutBottleInShelf.max_in_hand_slip_mm > quick.max_in_hand_slip_mm
     assert not slow.safe
+
+
+def test_a_patch_running_off_the_gf225_image_gives_the_squareness_from_the_press():
+    # a sliver at the image's edge (23.5 of the 27 mm gel imaged): the patch starts at the gel's end out of
+    # sight, where the pad presses 0.3 mm, and ends at the sliver's inner end
+    sliver = TouchReading(True, 0.1, (11.7, -0.2), 0.0, 1.0, 0.01, 1.0, 0.05, 0.05)
+    gf225, mini = get_sensor("gf225"), get_sensor("gelsight_mini")
+    assert patch_at_image_edge(sliver, gf225.gel_width_mm, gf225.imaged_width_mm)
+    angle = squareness_from_touch(sliver, TouchReading.none(), gf225.gel_width_mm, gf225.imaged_width_mm, (0.3, 0.3))
+    assert math.degrees(angle) == pytest.approx(math.degrees(math.atan(0.3 / (13.5 - 11.675))), abs=0.01)
+    # the Mini images all of its gel: no patch runs off its image
+    assert not patch_at_image_edge(sliver, mini.gel_width_mm, mini.imaged_width_mm)
+
+
+@pytest.mark.parametrize("seed", [130, 133])
+def test_lift_can_on_the_gf225_squares_from_a_patch_at_the_image_edge(seed):
+    # the can crosses the pads about 10 deg from square: one image shows only a sliver at its edge (these seeds
+    # lifted the can crooked when the expert needed two patches in view)
+    o = outcome("lift_can", "gf225", seed)
+    task = make_task("lift_can", TaskConfig(cameras=False, sensor="gf225"))
+    error_deg = math.degrees(task.sample_layout(np.random.default_rng(seed))["seen_yaw_error_rad"])
+    first = o.memory["corrections"][0]
+    assert first["what"] == "grasp squareness" and first["patch_span_mm"] < 0.5
+    assert first["angle_deg"] == pytest.approx(-error_deg, abs=1.5)
+    assert o.success and o.safe

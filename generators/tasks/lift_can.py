@@ -15,9 +15,12 @@ Randomisation (seeded)
     U(-1, 1) cm along the can.
 Expert (closed loop; the signal behind each correction is recorded in ``memory['corrections']``)
     descend to the can's axis height; tactile grasp to 0.5 mm (0.3 mm on the GF225 and Xense WS, whose safe
-    limit is 0.8 mm); **squareness correction**: the two pads' contact centroids along the can (pad x) differ by
-    ``delta`` mm when the fingers close at an angle ``e = atan(delta / d)`` to the can's diameter ``d``
-    (read off the pads' distance); if ``|e| > 3 deg`` open 1 cm, turn the gripper by ``e`` about the vertical,
+    limit is 0.8 mm); **squareness correction**: a can crossing the pads at an angle ``e`` touches each pad over
+    a strip that starts at the pad's end, where it is deepest, and ends where the can leaves the gel: its depth
+    ``d`` over its length ``L`` along the pad gives ``tan e = d / L``, the end it sits at the sign; where a
+    patch runs off the image (the GF225's, about 10 deg from square: a sliver at the image's edge, perhaps on
+    one pad only), ``L`` runs from the patch's inner end to the gel's end and ``d`` is the pad's press (the
+    grasp law's indentation); if ``|e| > 3 deg`` open 1.2 cm, turn the gripper by ``e`` about the vertical,
     re-grasp (at most twice). **Patch off the image**: when both pads press (the grasp law's indentation)
     but neither image shows a patch, the can touches the gel only beyond the imaged area (the GF225 images
     23.5 of its 27 mm gel, so a can more than about 10 deg from square) and which way it crosses is unknown:
@@ -33,7 +36,8 @@ Safety (per step; a violation makes the rollout invalid)
 Step limit
     300 policy steps (6 s at 50 Hz).
 Version history
-    v0: first version (the environment). Its expert since: the turn when the patch is off the image (GF225).
+    v0: first version (the environment). Its expert since: the turn when the patch is off the image (GF225);
+    the squareness from a patch at the image's edge (GF225).
 """
 
 from __future__ import annotations
@@ -61,9 +65,19 @@ LIFT_M = 0.12
 SQUARE_TOLERANCE_RAD = math.radians(3.0)
 BLIND_TURN_RAD = math.radians(12.0)  # the middle of the camera's 6-18 deg yaw error
 MAX_BLIND_TURNS = 2
+EDGE_MM = 0.25  # a patch ending this close to the image's edge runs off it
 
 
-def squareness_from_touch(left: TouchReading, right: TouchReading, pad_width_mm: float) -> float:
+def patch_at_image_edge(reading: TouchReading, pad_width_mm: float, imaged_width_mm: float) -> bool:
+    """Whether ``reading``'s patch runs off the image along pad x into gel the image does not show (the GF225
+    images 23.5 of its 27 mm gel; the Mini all of it, the Xense WS all but 0.07 mm, less than a cell)."""
+    hidden_mm = (pad_width_mm - imaged_width_mm) / 2
+    outer_mm = abs(reading.centroid_mm[0]) + reading.span_x_mm / 2
+    return reading.touching and hidden_mm > EDGE_MM and outer_mm >= imaged_width_mm / 2 - EDGE_MM
+
+
+def squareness_from_touch(left: TouchReading, right: TouchReading, pad_width_mm: float,
+                          imaged_width_mm: float | None = None, press_mm: tuple[float, float] = (0.0, 0.0)) -> float:
     """Angle (rad) to turn the gripper about the vertical so that the fingers close square across the can.
 
     A can whose axis makes an angle e with the pads touches each pad over a patch that starts at one end
@@ -71,10 +85,23 @@ def squareness_from_touch(left: TouchReading, right: TouchReading, pad_width_mm:
     tan e = d / L. A square grasp touches along the whole pad, evenly. The side of the pad the patches sit
     on (the centroids, in gripper y: left pad x is gripper +y, right pad x is gripper -y) gives the sign.
     L is read along the pad's x (the can's direction), where the patch of a tilted can is a short strip.
+
+    A patch that runs off the image (``patch_at_image_edge``; ``imaged_width_mm`` narrower than the pad)
+    starts at the gel's end out of sight, where the pad presses ``press_mm`` (left, right: the grasp law's
+    indentation): there L runs from the patch's inner end to the gel's end, and one such pad is enough (the
+    other's patch may lie wholly out of sight).
     """
     if left.span_x_mm >= 0.8 * pad_width_mm and right.span_x_mm >= 0.8 * pad_width_mm:
         return 0.0
-    tilt = math.atan2(0.5 * (left.max_depth_mm + right.max_depth_mm), 0.5 * (left.span_x_mm + right.span_x_mm))
+    edges = [imaged_width_mm is not None and patch_at_image_edge(r, pad_width_mm, imaged_width_mm)
+             for r in (left, right)]
+    if any(edges):
+        slopes = [press / max(pad_width_mm / 2 - (abs(r.centroid_mm[0]) - r.span_x_mm / 2), 1e-6) if edge
+                  else r.max_depth_mm / max(r.span_x_mm, 1e-6)
+                  for r, edge, press in zip((left, right), edges, press_mm) if r.touching]
+        tilt = math.atan(sum(slopes) / len(slopes))
+    else:
+        tilt = math.atan2(0.5 * (left.max_depth_mm + right.max_depth_mm), 0.5 * (left.span_x_mm + right.span_x_mm))
     offset = left.centroid_mm[0] + right.centroid_mm[0]  # gripper y of the left patch minus that of the right
     return math.copysign(tilt, offset) if abs(offset) > 0.5 else 0.0
 
@@ -161,9 +188,13 @@ class LiftCan(Task):
                 yield from open_to(ctx, ctx.target[7] + 0.012, primitive="regrasp")
                 yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp")
                 continue
-            if not (touch["left"].touching and touch["right"].touching):
+            gel_mm, imaged_mm = self.profile.gel_width_mm, self.profile.imaged_width_mm
+            off_image = any(patch_at_image_edge(touch[pad], gel_mm, imaged_mm) for pad in ("left", "right"))
+            if not (touch["left"].touching and touch["right"].touching) and not off_image:
                 break
-            angle = squareness_from_touch(touch["left"], touch["right"], self.profile.gel_width_mm)
+            press = ctx.indentation_mm()
+            angle = squareness_from_touch(touch["left"], touch["right"], gel_mm, imaged_mm,
+                                          (press["left"], press["right"]))
             if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt - blind == 2 or not ctx.corrections_enabled:
                 break
             ctx.correction("grasp squareness", "contact patch depth gradient and centroid along the can",

@@ -44,14 +44,15 @@ Safety (per step; a violation makes the rollout invalid)
     origin moves at most 10 mm in the gripper frame once both pads grip it. The swing is a turn of some
     55 deg about the pads' centre line, which the origin misses by up to 5 mm (the camera's error along the
     pads, the grip height's): that alone moves it up to 4.6 mm; the bottle also sinks along the pads by up
-    to 3 mm while the grasp is loose (seeds 0-29: at most 7.9 mm in all).
+    to 3 mm while the grasp is loose (seeds 0-29: at most 6.9 mm in all).
 Physics (``benchmarks/pivot_stability.py``; docs/tasks.md)
     the kit's scene options (1 ms, implicitfast, elliptic cone, 4 noslip iterations, impratio 1): the pivot
     sweep finds the swing stable and converged there (0.25 and 0.5 ms turn it the same), so no override.
 Step limit
     300 policy steps (6 s at 50 Hz).
 Version history
-    v0: first version.
+    v0: first version (the environment). Its expert since: the thinner grip on the GF225 and Xense WS; the
+    quicker swing (0.15 mm and 6 deg a step, was 0.03 mm and 1.5 deg) with its exit under 15 deg.
 """
 
 from __future__ import annotations
@@ -100,7 +101,7 @@ RELEASE_SPEED_M_S = 0.3
 # "tight"), still 0.6 mm inside the Mini's 1.5 mm safe limit
 GRIP_DEPTH_FACTOR = 1.8
 # on the gels safe to 0.8 mm (GF225, Xense WS) the same factor, 0.54 mm, let the bottle's weight press one pad
-# to 0.80-1.04 mm (the pads' contact is as stiff as the Mini's): a quarter of Lift Bottle's and three fifths of
+# to 0.80-1.04 mm, 0.26-0.50 mm past the grip: a quarter of Lift Bottle's and three fifths of
 # Put Bottle's held-out seeds were unsafe on the GF225 (expert_heldout.py); 0.36 mm holds the bottle within it
 THIN_GEL_GRIP_FACTOR = 1.2
 REGRIP_FACTOR = 0.8  # of the kit's grasp depth, once the bottle hangs upright

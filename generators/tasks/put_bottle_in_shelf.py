@@ -115,8 +115,8 @@ PIVOT_FAST_STEP_M = 0.0002  # opening change a step while the pads still press d
 PIVOT_FAST_ABOVE_MM = 0.3
 # a quick swing: the loose bottle slides down the pads for as long as the press is light, and the more the longer
 # the contact strip resists the turn (the GF225's 29 mm gel against the Mini's 20.75 mm): at 0.03 mm and 1.5 deg
-# a step the GF225's swing slid a bottle a median 8.6 mm (up to 13.9: 16 of seeds 100-159 over the task's 10 mm),
-# at 0.15 mm and 6 deg 4.2 (up to 9.4, seeds 100-299; the Mini 4.1 -> 2.1-2.3, the Xense WS 3.0 -> 2.0)
+# a step the GF225's swing moved a bottle a median 8.1 mm in the hand (up to 13.4: 20 of 100 held-out seeds over
+# the task's 10 mm), at 0.15 mm and 6 deg 4.0 (up to 7.4; the Mini 3.7 -> 2.0-2.2; expert_heldout.py)
 PIVOT_STEP_M = 0.00015  # opening change a step near the press where the bottle turns, m
 PIVOT_RATE_RAD = math.radians(6.0)  # wanted turn a step: loosen while slower
 PIVOT_FAST_RATE_RAD = math.radians(12.0)  # tighten while faster
@@ -264,10 +264,10 @@ class PutBottleInShelf(Task):
             slow = slow + 1 if rate < creep and loosest else 0
             if slow >= stall_steps:
                 break
-            if rate < -moving and tilt < math.radians(15):
-                break  # swung through upright: grip where it is
             if tilt < PIVOT_NEAR_RAD and rate < moving:
-                break  # hardly turning and near enough for the place: every loose step slides it down the pads
+                # near enough for the place and hardly turning, or swung through upright (turning back): every
+                # loose step slides it down the pads, so grip where it is
+                break
             previous = tilt
             action = ctx.target.copy()
             if depth < PIVOT_MIN_DEPTH_MM or rate > too_fast:

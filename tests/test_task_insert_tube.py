@@ -17,7 +17,8 @@ from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_to_mat
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
-from univtac_data.generators.tasks.holes import Bore, tube_in_solid_mm
+from univtac_data.generators.tasks.holes import Bore, in_hole_frame, tube_in_solid_mm
+from univtac_data.generators.tasks import insert_tube
 from univtac_data.generators.tasks.insert_tube import BORE, TUBE_HALF_M, TUBE_RADIUS_M, InsertTube
 from univtac_data.generators.tasks.session import TaskSession
 from univtac_data.schema.sensors import get_sensor
@@ -38,26 +39,52 @@ class Outcome:
     in_solid_mm: float  # deepest the tube's surface went into the bore's walls over the episode
     memory: dict[str, Any]
     first_offset_mm: float
+    aim_errors_mm: list[float]  # per retried probe: how far the tube's end (hole frame x, y) was from its aim
+    tilt_at_push_deg: float | None  # the tube's axis from the bore's as the push began (None: no push)
+    depth_mm: float  # how deep the tube's end ended below the entrance
+
+
+def tube_end_in_hole(task: InsertTube, layout: dict[str, Any], tube_pose: np.ndarray) -> np.ndarray:
+    """(3,) the tube's lower end in the hole frame, m."""
+    pos, quat = task.hole_pose(layout)
+    return in_hole_frame(pos, quat, tube_pose[:3] - quat_to_mat(tube_pose[3:])[:, 2] * TUBE_HALF_M)
 
 
 def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
-    """The expert from ``seed``, checking every step's tube pose against the hole's geometry."""
+    """The expert from ``seed``, checking every step's tube pose against the hole's geometry, and where each
+    retried probe began against where the expert aimed it."""
     session = TaskSession(task)
     try:
         state = session.reset(seed)
         ctx = ExpertContext(session, session.rng)
         ctx.corrections_enabled = corrections
         pos, quat = task.hole_pose(session.layout)
-        deepest = 0.0
+        first = np.asarray(session.layout["first_offset_m"], float)
+        deepest, attempts, aim_errors, tilt = 0.0, 0, [], None
         for step in task.expert(ctx):
             if session.steps >= task.max_steps:
                 break
+            if ctx.memory.get("attempts", 0) != attempts:  # a probe's descent begins with this step
+                attempts = ctx.memory["attempts"]
+                retries = [c for c in ctx.memory["corrections"] if c["what"] == "search step after a miss"]
+                if retries:
+                    aim = first + np.array([retries[-1]["step_x_mm"], retries[-1]["step_y_mm"]]) / 1000.0
+                    end = tube_end_in_hole(task, session.layout, state.objects["tube"])
+                    aim_errors.append(1000.0 * float(np.linalg.norm(end[:2] - aim)))
+            if step.primitive == "insert" and tilt is None:
+                axis = quat_to_mat(state.objects["tube"][3:])[:, 2] @ quat_to_mat(quat)[:, 2]
+                tilt = math.degrees(math.acos(min(1.0, abs(float(axis)))))
             state = session.step(step.action, step.primitive)
             deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
+        depth = -1000.0 * float(tube_end_in_hole(task, session.layout, state.objects["tube"])[2])
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
-                       dict(ctx.memory), 1000 * float(np.hypot(*session.layout["first_offset_m"])))
+                       dict(ctx.memory), 1000 * float(np.hypot(*first)), aim_errors, tilt, depth)
     finally:
         session.close()
+
+
+def retries_of(o: Outcome) -> list[dict[str, Any]]:
+    return [c for c in o.memory["corrections"] if c["what"] == "search step after a miss"]
 
 
 @pytest.fixture(scope="module")
@@ -69,9 +96,9 @@ def outcomes() -> list[Outcome]:
 @pytest.mark.slow
 def test_expert_inserts_on_100_seeds_safely_and_never_through_solid(outcomes: list[Outcome]):
     successes = sum(o.success for o in outcomes)
-    retried = [o for o in outcomes if o.memory["corrections"]]
+    retried = [o for o in outcomes if retries_of(o)]
     print(f"insert_tube expert: success {successes}/100, safe {sum(o.safe for o in outcomes)}, retries on "
-          f"{len(retried)} seeds (at most {max(len(o.memory['corrections']) for o in outcomes)}), steps max "
+          f"{len(retried)} seeds (at most {max(len(retries_of(o)) for o in outcomes)}), steps max "
           f"{max(o.steps for o in outcomes)}, deepest in a wall {max(o.in_solid_mm for o in outcomes):.2f} mm")
     assert successes >= 90, [o.seed for o in outcomes if not o.success]
     assert all(o.safe for o in outcomes), [(o.seed, o.violation) for o in outcomes if not o.safe]
@@ -83,17 +110,23 @@ def test_expert_inserts_on_100_seeds_safely_and_never_through_solid(outcomes: li
 
 @pytest.mark.slow
 def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_often(outcomes: list[Outcome]):
-    retried = [o for o in outcomes if o.memory["corrections"]]
+    retried = [o for o in outcomes if retries_of(o)]
     assert len(retried) >= 30  # a first attempt 1-4 mm off misses the chamfer's reach often
-    for o in retried:
+    for o in outcomes:
         for c in o.memory["corrections"]:
-            assert c["what"] == "search step after a miss" and c["signal"].startswith("axial shear")
-            assert c["shear_mm"] > 0.75 and 1.0 < c["move_mm"] <= 3.0 + 1e-6
+            if c["what"] == "search step after a miss":
+                assert c["signal"].startswith("axial shear")
+                assert c["shear_mm"] > 0.75 and 1.0 < c["move_mm"] <= 3.0 + 1e-6
+            elif c["what"] == "aim again after the step":
+                assert c["signal"].startswith("shear across and along the pads") and 0.2 < c["move_mm"] < 2.0
+            else:
+                assert c["what"] == "straighten the tube" and c["signal"].startswith("marker field's rotation")
+                assert 1.5 < abs(c["turn_deg"]) < 10.0 and c["pivot_deg"] == -c["turn_deg"]
     # a large first offset is always a miss, a small one goes straight in
-    assert all(o.memory["corrections"] for o in outcomes if o.first_offset_mm > 3.0)
-    assert not any(o.memory["corrections"] for o in outcomes if o.first_offset_mm < 1.2)
+    assert all(retries_of(o) for o in outcomes if o.first_offset_mm > 3.0)
+    assert not any(retries_of(o) for o in outcomes if o.first_offset_mm < 1.2)
     near = [o for o in outcomes if o.first_offset_mm < 2.0]
-    assert sum(not o.memory["corrections"] for o in near) >= 0.8 * len(near)  # within the chamfer's reach
+    assert sum(not retries_of(o) for o in near) >= 0.8 * len(near)  # within the chamfer's reach
     seeds = range(30)
     task = InsertTube(FAST, PROFILE, corrections=False)
     without = [run(task, seed, corrections=True) for seed in seeds]
@@ -104,11 +137,44 @@ def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_oft
     assert ok_without <= ok_with - 0.25, (ok_with, ok_without)
 
 
+@pytest.mark.slow
+def test_aiming_again_after_each_step_puts_the_tube_where_the_probe_means_it(outcomes: list[Outcome], monkeypatch):
+    """A retry's step drags the tube across the pads; aimed once before the step, a probe began up to about
+    1 mm from where it was meant (and missed a hole it was meant to find); aimed again from the pads after
+    the step, within about 0.5 mm."""
+    errors = [e for o in outcomes for e in o.aim_errors_mm]
+    assert len(errors) >= 60 and max(errors) < 0.6, max(errors)
+    monkeypatch.setattr(insert_tube, "REAIM_TRIES", 0)
+    task = InsertTube(FAST, PROFILE)
+    once = [e for seed in range(20) for e in run(task, seed).aim_errors_mm]
+    print(f"insert_tube aim error, seeds 0-99: median {np.median(errors):.2f} mm, max {max(errors):.2f}; aimed "
+          f"once, seeds 0-19: median {np.median(once):.2f}, max {max(once):.2f}")
+    assert len(once) >= 20 and max(once) > 0.7 and np.median(once) > np.median(errors) + 0.1
+
+
+@pytest.mark.slow
+def test_a_tube_turned_in_the_grasp_is_straightened_before_the_push(outcomes: list[Outcome], monkeypatch):
+    """The chamfer turns the tube in the grasp by up to about 5 deg; the pads' marker rotation reads it and
+    the gripper turns it back before the push. On the GF225's seed 144 (development seed) the tube turned 4
+    deg: pushed crooked it wedged in the bore, slid 9 mm up the pads and ended 26 mm deep."""
+    straightened = [o for o in outcomes if any(c["what"] == "straighten the tube" for c in o.memory["corrections"])]
+    assert straightened and all(o.tilt_at_push_deg < 1.5 for o in straightened), \
+        [(o.seed, o.tilt_at_push_deg) for o in straightened]
+    gf225 = TaskConfig(sensor="gf225", cameras=False)
+    straight = run(InsertTube(gf225, get_sensor("gf225")), 144)
+    monkeypatch.setattr(insert_tube, "STRAIGHTEN_TURN_RAD", math.inf)
+    crooked = run(InsertTube(gf225, get_sensor("gf225")), 144)
+    print(f"GF225 seed 144: straightened {straight.tilt_at_push_deg:.2f} deg at the push, {straight.depth_mm:.1f} mm "
+          f"deep; not straightened {crooked.tilt_at_push_deg:.2f} deg, {crooked.depth_mm:.1f} mm deep")
+    assert straight.success and straight.tilt_at_push_deg < 1.5 and straight.depth_mm > 33.0
+    assert crooked.tilt_at_push_deg > 2.5 and crooked.depth_mm < straight.depth_mm - 5.0
+
+
 def test_replaying_recorded_actions_reproduces_the_insertion_and_the_episode_validates(tmp_path):
     outcome = run_expert(TaskEpisodeSpec("insert_tube", 78, FAST))
     episode = outcome.episode
     assert outcome.success and outcome.safe and episode is not None and episode.meta.success
-    assert len(outcome.memory["corrections"]) == 6, "seed 78 misses six times: the most sliding in the grasp"
+    assert len(retries_of(outcome)) == 6, "seed 78 misses six times: the most sliding in the grasp"
     names = episode.meta.primitive_names
     used = {names[i] for i in np.unique(episode["scene/primitive"]) if i >= 0}
     assert {"probe", "retry", "insert"} <= used
@@ -119,7 +185,9 @@ def test_replaying_recorded_actions_reproduces_the_insertion_and_the_episode_val
         for action in episode["robot/action"][:-1]:
             state = session.step(action)
         assert task.success(state)
-        assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 1e-3
+        # the actions are stored in float32: replayed in float64 this run is exact, and the rounding, carried
+        # through six misses' sliding in the grasp, leaves the tube about 1 mm from where it ended (measured 1.05)
+        assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 2e-3
     finally:
         session.close()
     # the validators pass it, the pads' recorded slip included (the task's own max_pad_slip_mm)

@@ -30,9 +30,15 @@ Expert (closed loop; corrections in ``memory['corrections']``)
     point of a ring of 6 points 3 mm around the first attempt (each a 3 mm step from the last), probe again; recorded with
     the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
     tube's end where the pads place it in the hand (their shear along and across the pads and the marker
-    field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **insert**:
-    push until the end is 3.5 cm deep, 2 cm/s, once a probe went through (never on a blocked tube, which would
-    only slide up the pads); hold 0.2 s. ``corrections=False`` never retries.
+    field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **aim
+    again** (after a retry's step): the step drags the tube across the pads by up to about 1 mm (median 0.3);
+    when the pads place its end more than 0.2 mm from the aim, move there at 2 cm/s (twice at most; recorded
+    with ``move_mm``). **straighten** (before the push): when the marker field's rotation says the tube turned
+    in the grasp by more than 1.5 deg (the chamfer turns it, up to about 5 deg), turn the gripper back by
+    that angle about the pads' normal through the tube's end, at 0.3 rad/s (recorded with ``turn_deg``,
+    ``pivot_deg``): pushed crooked, the tube wedged in the bore and slid up to 9 mm up the pads, short of 3 cm.
+    **insert**: push until the end is 3.5 cm deep, 2 cm/s, once a probe went through (never on a blocked tube,
+    which would only slide up the pads); hold 0.2 s. ``corrections=False`` never retries nor straightens.
 Success
     the tube's lower end within 5 mm of the hole's axis (hole frame x, y) and at least 3 cm deep.
 Safety (per step)
@@ -59,7 +65,7 @@ from univtac_data.generators.scene.gripper import GripperParams, gripper_actuato
 from univtac_data.generators.scene.stage import STAGE_ASSETS_XML, stage_xml
 from univtac_data.generators.tasks.base import ExpertContext, Step, Task, TaskConfig, TaskState
 from univtac_data.generators.tasks.holes import Bore, HoleContact, in_hole_frame, square_plate_xml
-from univtac_data.generators.tasks.motions import held_opening_m, move_to, wait
+from univtac_data.generators.tasks.motions import held_opening_m, move_to, rotate_about, wait
 from univtac_data.schema.sensors import SensorProfile
 
 TUBE_RADIUS_M = 0.010
@@ -84,6 +90,10 @@ SEARCH_RADIUS_M = 0.003
 SEARCH_POINTS = 6
 INSERT_DEPTH_M = 0.035
 INSERT_SPEED_M_S = 0.02
+STRAIGHTEN_TURN_RAD = math.radians(1.5)  # a larger turn in the grasp is straightened before the push
+STRAIGHTEN_RATE_RAD_S = 0.3
+REAIM_TOLERANCE_M = 0.0002  # after a retry's step the tube's end is aimed again if the pads place it further off
+REAIM_TRIES = 2
 
 
 def grip_opening_m(profile: SensorProfile) -> float:
@@ -163,7 +173,7 @@ class InsertTube(Task):
     name = "insert_tube"
     gym_id = "univtac/InsertTube-v0"
     max_steps = 300
-    primitive_names = ["probe", "retry", "insert", "hold"]
+    primitive_names = ["probe", "retry", "insert", "hold", "straighten"]
     # each miss slides the tube up the pads by about 0.8 mm (the probe stops on that shear); UniVTAC allows 30 mm
     max_in_hand_slip_mm = 10.0
     # the pads' recorded slip (tactile/{pad}/slip_mm) adds up the sliding of every miss: 13 mm after
@@ -263,6 +273,16 @@ class InsertTube(Task):
                 yield from move_to(ctx, ctx.target[:3] + axis * 0.002, speed_m_s=0.04, primitive="retry")
                 yield from move_to(ctx, above + axis * 0.002, speed_m_s=0.04, primitive="retry")
             yield from move_to(ctx, above, speed_m_s=0.04, primitive="probe")
+            for _ in range(REAIM_TRIES if k > 0 else 0):
+                # the step drags the tube across the pads (up to about 1 mm): aim again from what they read now
+                above = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
+                moved_mm = float(np.linalg.norm(above - ctx.target[:3]) * 1000)
+                if moved_mm <= REAIM_TOLERANCE_M * 1000:
+                    break
+                ctx.correction("aim again after the step", "shear across and along the pads: the tube moved in the "
+                               f"grasp during the step by more than {REAIM_TOLERANCE_M * 1000:.1f} mm",
+                               move_mm=moved_mm)
+                yield from move_to(ctx, above, speed_m_s=0.02, primitive="probe")
             ctx.memory["attempts"] = k + 1
             before = shear.axial_mm()
             blocked_by = 0.0
@@ -277,10 +297,20 @@ class InsertTube(Task):
         if not ctx.memory["inside"]:  # every probe was blocked: pushing on would only drive the tube up the pads
             yield from wait(ctx, 0.2)
             return
+        hand = mat  # the gripper's orientation (world), the hole frame's until the tube is straightened
+        turn = shear.turn_rad()
+        if abs(turn) > STRAIGHTEN_TURN_RAD and self.corrections and ctx.corrections_enabled:
+            # the chamfer turned the tube in the grasp: pushed crooked it wedges in the bore and slides up the pads
+            ctx.correction("straighten the tube", "marker field's rotation: the tube turned in the grasp by more "
+                           f"than {math.degrees(STRAIGHTEN_TURN_RAD):.1f} deg", turn_deg=math.degrees(turn),
+                           pivot_deg=-math.degrees(turn))
+            tip = ctx.target[:3] + mat @ shear.end_in_hand_m(TUBE_HALF_M)
+            yield from rotate_about(ctx, mat[:, 0], -turn, tip, turn_rad_s=STRAIGHTEN_RATE_RAD_S, primitive="straighten")
+            hand = quat_to_mat(ctx.target[3:7])
         # push until the tube's end (the hand's travel less what the tube slid up the pads) is INSERT_DEPTH_M deep
-        end = pos + mat @ np.array([*in_hole_frame(pos, quat, ctx.target[:3] + mat @ shear.end_in_hand_m(TUBE_HALF_M))[:2],
+        end = pos + mat @ np.array([*in_hole_frame(pos, quat, ctx.target[:3] + hand @ shear.end_in_hand_m(TUBE_HALF_M))[:2],
                                     -INSERT_DEPTH_M])
-        goal = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
+        goal = end - hand @ shear.end_in_hand_m(TUBE_HALF_M)
         yield from move_to(ctx, goal, speed_m_s=INSERT_SPEED_M_S, primitive="insert")
         yield from wait(ctx, 0.2)
 

@@ -39,7 +39,6 @@ class Outcome:
     in_solid_mm: float  # deepest the tube's surface went into the bore's walls over the episode
     memory: dict[str, Any]
     first_offset_mm: float
-    aim_errors_mm: list[float]  # per retried probe: how far the tube's end (hole frame x, y) was from its aim
     tilt_at_push_deg: float | None  # the tube's axis from the bore's as the push began (None: no push)
     depth_mm: float  # how deep the tube's end ended below the entrance
 
@@ -51,8 +50,7 @@ def tube_end_in_hole(task: InsertTube, layout: dict[str, Any], tube_pose: np.nda
 
 
 def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
-    """The expert from ``seed``, checking every step's tube pose against the hole's geometry, and where each
-    retried probe began against where the expert aimed it."""
+    """The expert from ``seed``, checking every step's tube pose against the hole's geometry."""
     session = TaskSession(task)
     try:
         state = session.reset(seed)
@@ -60,17 +58,10 @@ def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
         ctx.corrections_enabled = corrections
         pos, quat = task.hole_pose(session.layout)
         first = np.asarray(session.layout["first_offset_m"], float)
-        deepest, attempts, aim_errors, tilt = 0.0, 0, [], None
+        deepest, tilt = 0.0, None
         for step in task.expert(ctx):
             if session.steps >= task.max_steps:
                 break
-            if ctx.memory.get("attempts", 0) != attempts:  # a probe's descent begins with this step
-                attempts = ctx.memory["attempts"]
-                retries = [c for c in ctx.memory["corrections"] if c["what"] == "search step after a miss"]
-                if retries:
-                    aim = first + np.array([retries[-1]["step_x_mm"], retries[-1]["step_y_mm"]]) / 1000.0
-                    end = tube_end_in_hole(task, session.layout, state.objects["tube"])
-                    aim_errors.append(1000.0 * float(np.linalg.norm(end[:2] - aim)))
             if step.primitive == "insert" and tilt is None:
                 axis = quat_to_mat(state.objects["tube"][3:])[:, 2] @ quat_to_mat(quat)[:, 2]
                 tilt = math.degrees(math.acos(min(1.0, abs(float(axis)))))
@@ -78,7 +69,7 @@ def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
             deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
         depth = -1000.0 * float(tube_end_in_hole(task, session.layout, state.objects["tube"])[2])
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
-                       dict(ctx.memory), 1000 * float(np.hypot(*first)), aim_errors, tilt, depth)
+                       dict(ctx.memory), 1000 * float(np.hypot(*first)), tilt, depth)
     finally:
         session.close()
 
@@ -117,8 +108,6 @@ def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_oft
             if c["what"] == "search step after a miss":
                 assert c["signal"].startswith("axial shear")
                 assert c["shear_mm"] > 0.75 and 1.0 < c["move_mm"] <= 3.0 + 1e-6
-            elif c["what"] == "aim again after the step":
-                assert c["signal"].startswith("shear across and along the pads") and 0.2 < c["move_mm"] < 2.0
             else:
                 assert c["what"] == "straighten the tube" and c["signal"].startswith("marker field's rotation")
                 assert 1.5 < abs(c["turn_deg"]) < 10.0 and c["pivot_deg"] == -c["turn_deg"]
@@ -135,21 +124,6 @@ def test_misses_are_found_by_shear_and_without_retries_the_expert_fails_more_oft
     ok_without = sum(o.success and o.safe for o in without) / len(seeds)
     print(f"insert_tube seeds 0-29: success (and safe) {ok_with:.0%} with retries, {ok_without:.0%} without")
     assert ok_without <= ok_with - 0.25, (ok_with, ok_without)
-
-
-@pytest.mark.slow
-def test_aiming_again_after_each_step_puts_the_tube_where_the_probe_means_it(outcomes: list[Outcome], monkeypatch):
-    """A retry's step drags the tube across the pads; aimed once before the step, a probe began up to about
-    1 mm from where it was meant (and missed a hole it was meant to find); aimed again from the pads after
-    the step, within about 0.5 mm."""
-    errors = [e for o in outcomes for e in o.aim_errors_mm]
-    assert len(errors) >= 60 and max(errors) < 0.6, max(errors)
-    monkeypatch.setattr(insert_tube, "REAIM_TRIES", 0)
-    task = InsertTube(FAST, PROFILE)
-    once = [e for seed in range(20) for e in run(task, seed).aim_errors_mm]
-    print(f"insert_tube aim error, seeds 0-99: median {np.median(errors):.2f} mm, max {max(errors):.2f}; aimed "
-          f"once, seeds 0-19: median {np.median(once):.2f}, max {max(once):.2f}")
-    assert len(once) >= 20 and max(once) > 0.7 and np.median(once) > np.median(errors) + 0.1
 
 
 @pytest.mark.slow
@@ -185,9 +159,7 @@ def test_replaying_recorded_actions_reproduces_the_insertion_and_the_episode_val
         for action in episode["robot/action"][:-1]:
             state = session.step(action)
         assert task.success(state)
-        # the actions are stored in float32: replayed in float64 this run is exact, and the rounding, carried
-        # through six misses' sliding in the grasp, leaves the tube about 1 mm from where it ended (measured 1.05)
-        assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 2e-3
+        assert np.linalg.norm(state.objects["tube"][:3] - episode["scene/objects/tube/pose"][-1][:3]) < 1e-3
     finally:
         session.close()
     # the validators pass it, the pads' recorded slip included (the task's own max_pad_slip_mm)

@@ -30,13 +30,11 @@ Expert (closed loop; corrections in ``memory['corrections']``)
     point of a ring of 6 points 3 mm around the first attempt (each a 3 mm step from the last), probe again; recorded with
     the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
     tube's end where the pads place it in the hand (their shear along and across the pads and the marker
-    field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss). **aim
-    again** (after a retry's step): the step drags the tube across the pads by up to about 1 mm (median 0.3);
-    when the pads place its end more than 0.2 mm from the aim, move there at 2 cm/s (twice at most; recorded
-    with ``move_mm``). **straighten** (before the push): when the marker field's rotation says the tube turned
-    in the grasp by more than 1.5 deg (the chamfer turns it, up to about 5 deg), turn the gripper back by
-    that angle about the pads' normal through the tube's end, at 0.3 rad/s (recorded with ``turn_deg``,
-    ``pivot_deg``): pushed crooked, the tube wedged in the bore and slid up to 9 mm up the pads, short of 3 cm.
+    field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss).
+    **straighten** (before the push): when the marker field's rotation says the tube turned in the grasp by
+    more than 1.5 deg (the chamfer turns it, up to about 5 deg), turn the gripper back by that angle about the
+    pads' normal through the tube's end, at 0.3 rad/s (recorded with ``turn_deg``, ``pivot_deg``): pushed
+    crooked, the tube wedged in the bore and slid up to 9 mm up the pads, short of 3 cm.
     **insert**: push until the end is 3.5 cm deep, 2 cm/s, once a probe went through (never on a blocked tube,
     which would only slide up the pads); hold 0.2 s. ``corrections=False`` never retries nor straightens.
 Success
@@ -92,8 +90,6 @@ INSERT_DEPTH_M = 0.035
 INSERT_SPEED_M_S = 0.02
 STRAIGHTEN_TURN_RAD = math.radians(1.5)  # a larger turn in the grasp is straightened before the push
 STRAIGHTEN_RATE_RAD_S = 0.3
-REAIM_TOLERANCE_M = 0.0002  # after a retry's step the tube's end is aimed again if the pads place it further off
-REAIM_TRIES = 2
 
 
 def grip_opening_m(profile: SensorProfile) -> float:
@@ -273,16 +269,6 @@ class InsertTube(Task):
                 yield from move_to(ctx, ctx.target[:3] + axis * 0.002, speed_m_s=0.04, primitive="retry")
                 yield from move_to(ctx, above + axis * 0.002, speed_m_s=0.04, primitive="retry")
             yield from move_to(ctx, above, speed_m_s=0.04, primitive="probe")
-            for _ in range(REAIM_TRIES if k > 0 else 0):
-                # the step drags the tube across the pads (up to about 1 mm): aim again from what they read now
-                above = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
-                moved_mm = float(np.linalg.norm(above - ctx.target[:3]) * 1000)
-                if moved_mm <= REAIM_TOLERANCE_M * 1000:
-                    break
-                ctx.correction("aim again after the step", "shear across and along the pads: the tube moved in the "
-                               f"grasp during the step by more than {REAIM_TOLERANCE_M * 1000:.1f} mm",
-                               move_mm=moved_mm)
-                yield from move_to(ctx, above, speed_m_s=0.02, primitive="probe")
             ctx.memory["attempts"] = k + 1
             before = shear.axial_mm()
             blocked_by = 0.0

@@ -44,7 +44,7 @@ Safety (per step)
     slides it about 0.8 mm up the pads; UniVTAC allows 30 mm). The validators hold the pads' recorded slip
     (``tactile/{pad}/slip_mm``, the sliding path) to 20 mm (``max_pad_slip_mm``) instead of their 1 mm default.
 Step limit
-    300 policy steps (6 s at 50 Hz); the expert takes 110-245.
+    300 policy steps (6 s at 50 Hz); the expert takes 110-254 (seeds 0-99).
 Version history
     v0: first version.
 """

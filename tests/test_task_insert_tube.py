@@ -16,8 +16,8 @@ import pytest
 from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_to_mat
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
-from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
-from univtac_data.generators.tasks.holes import Bore, in_hole_frame, tube_in_solid_mm
+from univtac_data.generators.tasks.collect import ExpertOutcome, TaskEpisodeSpec, run_expert
+from univtac_data.generators.tasks.holes import Bore, tube_in_solid_mm
 from univtac_data.generators.tasks import insert_tube
 from univtac_data.generators.tasks.insert_tube import BORE, TUBE_HALF_M, TUBE_RADIUS_M, InsertTube
 from univtac_data.generators.tasks.session import TaskSession
@@ -43,12 +43,6 @@ class Outcome:
     depth_mm: float  # how deep the tube's end ended below the entrance
 
 
-def tube_end_in_hole(task: InsertTube, layout: dict[str, Any], tube_pose: np.ndarray) -> np.ndarray:
-    """(3,) the tube's lower end in the hole frame, m."""
-    pos, quat = task.hole_pose(layout)
-    return in_hole_frame(pos, quat, tube_pose[:3] - quat_to_mat(tube_pose[3:])[:, 2] * TUBE_HALF_M)
-
-
 def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
     """The expert from ``seed``, checking every step's tube pose against the hole's geometry."""
     session = TaskSession(task)
@@ -57,24 +51,23 @@ def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
         ctx = ExpertContext(session, session.rng)
         ctx.corrections_enabled = corrections
         pos, quat = task.hole_pose(session.layout)
-        first = np.asarray(session.layout["first_offset_m"], float)
         deepest, tilt = 0.0, None
         for step in task.expert(ctx):
             if session.steps >= task.max_steps:
                 break
             if step.primitive == "insert" and tilt is None:
-                axis = quat_to_mat(state.objects["tube"][3:])[:, 2] @ quat_to_mat(quat)[:, 2]
-                tilt = math.degrees(math.acos(min(1.0, abs(float(axis)))))
+                cos_tilt = quat_to_mat(state.objects["tube"][3:])[:, 2] @ quat_to_mat(quat)[:, 2]
+                tilt = math.degrees(math.acos(min(1.0, abs(float(cos_tilt)))))
             state = session.step(step.action, step.primitive)
             deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
-        depth = -1000.0 * float(tube_end_in_hole(task, session.layout, state.objects["tube"])[2])
+        depth = -1000.0 * float(task.tube_end_in_hole(session.layout, state.objects["tube"])[2])
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
-                       dict(ctx.memory), 1000 * float(np.hypot(*first)), tilt, depth)
+                       dict(ctx.memory), 1000 * float(np.hypot(*session.layout["first_offset_m"])), tilt, depth)
     finally:
         session.close()
 
 
-def retries_of(o: Outcome) -> list[dict[str, Any]]:
+def retries_of(o: Outcome | ExpertOutcome) -> list[dict[str, Any]]:
     return [c for c in o.memory["corrections"] if c["what"] == "search step after a miss"]
 
 

@@ -300,8 +300,11 @@ class InsertTube(Task):
         yield from move_to(ctx, goal, speed_m_s=INSERT_SPEED_M_S, primitive="insert")
         yield from wait(ctx, 0.2)
 
+    def tube_end_in_hole(self, layout: dict[str, Any], tube_pose: np.ndarray) -> np.ndarray:
+        """(3,) the tube's lower end in the hole frame, m, for the tube at ``tube_pose`` (7,) world."""
+        pos, quat = self.hole_pose(layout)
+        return in_hole_frame(pos, quat, tube_pose[:3] - quat_to_mat(tube_pose[3:])[:, 2] * TUBE_HALF_M)
+
     def success(self, state: TaskState) -> bool:
-        pos, quat = self.hole_pose(state.layout)
-        mat = quat_to_mat(state.objects["tube"][3:])
-        end = in_hole_frame(pos, quat, state.objects["tube"][:3] - mat[:, 2] * TUBE_HALF_M)
+        end = self.tube_end_in_hole(state.layout, state.objects["tube"])
         return bool(math.hypot(end[0], end[1]) < 0.005 and -end[2] >= 0.03)

@@ -82,10 +82,12 @@ def test_the_tilt_the_strips_show_is_the_true_tilt(name, what):
         assert c["signal"].startswith("contact strip angle")
         if what == "turn upright":  # noted before the turn
             # a lying bottle pressed 0.9 mm touches a band 15 mm wide that the 21 mm pad clips: the band's
-            # principal axis leans towards the pad's long side and the tilt reads 3-4.5 deg high (seeds 0-5)
-            assert c["total_tilt_deg"] - tilts[int(c["step"])] == pytest.approx(3.5, abs=1.5), seed
+            # principal axis leans towards the pad's long side (the tilt read 3-4.5 deg high from it, seeds
+            # 0-5); the line through its chords' midpoints is the axis
+            assert c["total_tilt_deg"] == pytest.approx(tilts[int(c["step"])], abs=0.3), seed
         else:  # noted after the swing, which began c['steps'] steps earlier
-            assert c["tilt_before_deg"] == pytest.approx(tilts[int(c["step"] - c["steps"])], abs=2.5), seed
+            # before: still (0.01 deg off, seeds 0-5); after: the bottle is still turning (up to 1.8 deg)
+            assert c["tilt_before_deg"] == pytest.approx(tilts[int(c["step"] - c["steps"])], abs=0.3), seed
             assert c["tilt_after_deg"] == pytest.approx(tilts[int(c["step"])], abs=2.5), seed
         checked += 1
     assert checked >= 4

@@ -110,6 +110,60 @@ def test_touch_reading_of_a_band_and_of_a_tilted_strip():
     assert not read_touch(np.full(grid.shape, GAP_FAR_MM), grid).touching
 
 
+def _cylinder_strip(grid, angle_rad: float, offset_mm: tuple[float, float], depth_mm, radius_mm: float = 32.5):
+    """Gap field (mm) of a cylinder lying on the pad, its axis at ``angle_rad`` from +x through ``offset_mm``,
+    pressed ``depth_mm(s)`` deep at ``s`` mm along its axis (deeper at one end when that is not constant)."""
+    x, y = grid.mesh()
+    ux, uy = math.cos(angle_rad), math.sin(angle_rad)
+    along = (x - offset_mm[0]) * ux + (y - offset_mm[1]) * uy
+    across = -(x - offset_mm[0]) * uy + (y - offset_mm[1]) * ux
+    gap = across**2 / (2 * radius_mm) - depth_mm(along)
+    return np.where(gap < 0, gap, GAP_FAR_MM)
+
+
+@pytest.mark.parametrize("sensor", ["gf225", "gelsight_mini"])
+@pytest.mark.parametrize("angle_deg", [100.0, 75.0, 20.0, -15.0])
+def test_the_chord_line_is_a_cylinders_axis_where_the_principal_direction_is_not(sensor, angle_deg):
+    """A bottle's strip, pressed deeper at one end and cut off by the image's border (as the GF225 holds a
+    bottle 5-30 deg off its pads' axis): the midpoints of the patch's chords lie on the axis, whatever the
+    press; the patch's principal direction leans towards the wide end."""
+    grid = sensor_grid(get_sensor(sensor), 1)
+    angle = math.radians(angle_deg)
+    wedge = _cylinder_strip(grid, angle, (1.5, -2.0), lambda s: np.clip(0.1 + 0.03 * s, 0.0, None))
+    reading = read_touch(wedge, grid)
+    expected = (angle + math.pi / 2) % math.pi - math.pi / 2
+    assert reading.chord_line_angle_rad is not None
+    assert abs(reading.chord_line_angle_rad - expected) < math.radians(0.5)
+    assert abs(reading.axis_angle_rad - expected) > math.radians(4.0)  # what the chord line is for
+    # the same patch read through a window of the grid (the gap field's box): the same line
+    rows, cols = np.nonzero(wedge < 0)
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    assert read_touch(wedge, grid, box).chord_line_angle_rad == pytest.approx(reading.chord_line_angle_rad)
+    # an even press (the image's rectangle alone cuts such a strip unevenly, so its principal direction
+    # is 1-3 deg off too)
+    even = read_touch(_cylinder_strip(grid, angle, (0.0, 0.0), lambda s: np.full_like(s, 0.3)), grid)
+    assert abs(even.chord_line_angle_rad - expected) < math.radians(0.5)
+
+
+def test_the_chord_line_leaves_out_chords_the_border_cuts():
+    grid = sensor_grid(get_sensor("gelsight_mini"), 1)
+    # a strip at 60 deg that leaves the image through its right side: its row-chords there are cut short
+    half_width = grid.x_mm[-1]
+    side = _cylinder_strip(grid, math.radians(60), (half_width - 4.0, 0.0), lambda s: np.full_like(s, 0.3))
+    assert (side[:, -1] < 0).any()
+    assert read_touch(side, grid).chord_line_angle_rad == pytest.approx(math.radians(60), abs=math.radians(0.5))
+    # a strip at 45 deg that ends square inside the image (a bottle's body ends at its base): chords taken
+    # along the grid's rows or columns would cut across that end, chords across the strip do not
+    for angle_deg in (45.0, -40.0):
+        ends = _cylinder_strip(grid, math.radians(angle_deg), (0.0, 0.0), lambda s: np.where(s > -4.0, 0.3, 0.0))
+        line = read_touch(ends, grid).chord_line_angle_rad
+        assert line == pytest.approx(math.radians(angle_deg), abs=math.radians(0.5))
+    tiny = np.full(grid.shape, GAP_FAR_MM)
+    tiny[0:2, 100:103] = -0.1  # six cells on the top border: every chord is cut
+    reading = read_touch(tiny, grid)
+    assert reading.touching and reading.chord_line_angle_rad is None
+
+
 @pytest.mark.parametrize("contact_method", ["geometric", "elastic"])
 def test_touch_after_a_recorded_frame_reads_its_fields_and_equals_its_own(contact_method, monkeypatch):
     """An expert reads the pads right after a frame is recorded: touch() then takes the frame's gap fields

@@ -97,7 +97,8 @@ class InHandPose:
 def _strip_angle_in_gripper(reading: TouchReading, pad: str) -> float:
     """Angle of a pad's contact strip from gripper +z towards gripper +y, in (-pi/2, pi/2]."""
     # pad frame -> gripper (y, z): left (x, y) -> (x, y); right (x, y) -> (-x, y)
-    a = reading.axis_angle_rad  # from pad +x towards pad +y
+    # the chords' midpoint line is the axis; the patch's principal direction tilts towards the deeper end
+    a = reading.axis_angle_rad if reading.chord_line_angle_rad is None else reading.chord_line_angle_rad
     gy, gz = math.cos(a), math.sin(a)
     if pad == "right":
         gy = -gy

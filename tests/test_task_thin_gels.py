@@ -40,15 +40,38 @@ def test_a_bottle_held_on_a_thin_gel_stays_within_its_safe_indentation(task, sen
     assert o.success
 
 
-def test_lift_can_on_the_gf225_turns_when_the_patch_is_off_the_image():
+@pytest.mark.parametrize("seed", [102, 309])
+def test_lift_can_on_the_gf225_turns_when_the_patch_is_off_the_image(seed):
     # the can crosses the pads so far from square that it touches the GF225's gel only beyond its imaged 23.5 mm:
-    # both pads press, neither image shows a patch; a turn brings the patch into view, then the squareness
-    # correction reads it
-    o = outcome("lift_can", "gf225", 102)
+    # both pads press, neither image shows a patch; a turn brings the patch into view, and the squareness read
+    # from it corrects the grasp when it is more than 6 deg (seed 309: 6.1 deg; seed 102 is lifted as it is)
+    o = outcome("lift_can", "gf225", seed)
     whats = [c["what"] for c in o.memory["corrections"]]
-    assert whats[0] == "grasp squareness, patch off the image"
-    assert "grasp squareness" in whats[1:]
+    assert whats == ["grasp squareness, patch off the image"] + ["grasp squareness"] * (seed == 309)
+    if seed == 309:
+        assert abs(o.memory["corrections"][1]["angle_deg"]) > 6.0
     assert o.success and o.safe
+
+
+def test_lift_can_on_the_gf225_has_time_left_after_a_blind_turn_the_wrong_way(monkeypatch):
+    # the first blind turn (12 deg) went the wrong way and the second turned back 24 deg: with a full re-grasp
+    # for each turn and a squareness re-grasp for the 3.4 deg left after them, the can was still turning at the
+    # 300-step limit. The turn back, towards square, opens 3 mm and turns at 2.4 rad/s, no re-grasp opens past
+    # the gripper's stroke, and after a blind turn only a can more than 6 deg from square is re-grasped
+    from univtac_data.generators.tasks import lift_can
+
+    o = outcome("lift_can", "gf225", 101)
+    blind = [c for c in o.memory["corrections"] if c["what"] == "grasp squareness, patch off the image"]
+    assert [c["angle_deg"] for c in blind] == pytest.approx([12.0, -24.0])
+    assert [c["what"] for c in o.memory["corrections"]] == [c["what"] for c in blind]
+    assert o.success and o.safe and o.steps < 285
+    monkeypatch.setattr(lift_can, "TOWARDS_SQUARE_OPEN_M", lift_can.REGRASP_OPEN_M)
+    monkeypatch.setattr(lift_can, "TOWARDS_SQUARE_TURN_RAD_S", 1.2)
+    monkeypatch.setattr(lift_can, "AFTER_BLIND_TOLERANCE_RAD", lift_can.SQUARE_TOLERANCE_RAD)
+    monkeypatch.setattr(lift_can, "regrasp_opening_m", lambda width_m, wider_m: width_m + wider_m)
+    before = outcome("lift_can", "gf225", 101)
+    assert before.memory["corrections"][-1]["what"] == "grasp squareness"
+    assert not before.success and before.steps == 300
 
 
 def test_lift_can_on_the_mini_never_turns_blind():

@@ -20,14 +20,17 @@ Expert (closed loop; the signal behind each correction is recorded in ``memory['
     ``d`` over its length ``L`` along the pad gives ``tan e = d / L``, the end it sits at the sign; where a
     patch runs off the image (the GF225's, about 10 deg from square: a sliver at the image's edge, perhaps on
     one pad only), ``L`` runs from the patch's inner end to the gel's end and ``d`` is the pad's press (the
-    grasp law's indentation); if ``|e| > 3 deg`` open 1.2 cm, turn the gripper by ``e`` about the vertical,
-    re-grasp (at most twice). **Patch off the image**: when both pads press (the grasp law's indentation)
-    but neither image shows a patch, the can touches the gel only beyond the imaged area (the GF225 images
-    23.5 of its 27 mm gel, so a can more than about 10 deg from square) and which way it crosses is unknown:
-    open 1 cm, turn 12 deg (the middle of the camera's error) and re-grasp; if still unseen, turn back 24 deg
-    (at most these two turns; recorded as ``grasp squareness, patch off the image``). The Mini images all of
-    its gel and the Xense WS nearly all (29.3 of 29.37 mm), so this does not happen there. Lift 12 cm at 10 cm/s; turn 90 deg about the
-    closing axis, the way that brings the top up; hold 0.4 s.
+    grasp law's indentation); if ``|e| > 3 deg`` (6 deg after a blind turn, below) open 1.2 cm (at most to the
+    gripper's stroke), turn the gripper by ``e`` about the vertical, re-grasp (at most twice). **Patch off the
+    image**: when both pads press (the grasp law's indentation) but neither image shows a patch, the can
+    touches the gel only beyond the imaged area (the GF225 images 23.5 of its 27 mm gel, so a can more than
+    about 10 deg from square) and which way it crosses is unknown: open 1.2 cm, turn 12 deg (the middle of the
+    camera's error) and re-grasp; if still unseen, turn back 24 deg, towards square, where the can narrows
+    between the pads: open 3 mm and turn at 2.4 rad/s (at most these two turns; recorded as ``grasp
+    squareness, patch off the image``). After a blind turn another re-grasp (about 50 steps) no longer fits
+    the step limit, and a can within 6 deg of square still stands within the 8.1 deg allowed. The Mini images
+    all of its gel and the Xense WS nearly all (29.3 of 29.37 mm), so this does not happen there. Lift 12 cm
+    at 10 cm/s; turn 90 deg about the closing axis, the way that brings the top up; hold 0.4 s.
 Success
     can centre at least 10 cm above where it lay and its axis upright: axis . z > 0.99 (8.1 deg).
 Safety (per step; a violation makes the rollout invalid)
@@ -37,7 +40,8 @@ Step limit
     300 policy steps (6 s at 50 Hz).
 Version history
     v0: first version (the environment). Its expert since: the turn when the patch is off the image (GF225);
-    the squareness from a patch at the image's edge (GF225).
+    the squareness from a patch at the image's edge (GF225); a quicker turn back after a blind turn and no
+    re-grasp past the stroke (GF225: 299 of development seeds 100-399 kept, was 269).
 """
 
 from __future__ import annotations
@@ -63,9 +67,22 @@ CANS = {  # diameter m -> (length m, mass kg)
 }
 LIFT_M = 0.12
 SQUARE_TOLERANCE_RAD = math.radians(3.0)
+# after a blind turn a further re-grasp (about 50 steps) no longer fits the step limit, and a can up to 6 deg
+# from square still stands within the 8.1 deg the task allows once turned upright
+AFTER_BLIND_TOLERANCE_RAD = math.radians(6.0)
 BLIND_TURN_RAD = math.radians(12.0)  # the middle of the camera's 6-18 deg yaw error
 MAX_BLIND_TURNS = 2
 EDGE_MM = 0.25  # a patch ending this close to the image's edge runs off it
+REGRASP_OPEN_M = 0.012  # a re-grasp opens this much wider before it turns the hand
+TOWARDS_SQUARE_OPEN_M = 0.003  # the same for the blind turn back, towards square
+TOWARDS_SQUARE_TURN_RAD_S = 2.4  # and that turn's speed (the others turn at rotate_about's 1.2 rad/s)
+
+
+def regrasp_opening_m(width_m: float, wider_m: float) -> float:
+    """The opening (m) a re-grasp opens to from ``width_m``: ``wider_m`` wider, at most the gripper's stroke
+    (a can far from square is held at nearly the full stroke, and a target beyond it cost the close that
+    follows ten steps to come back to the stroke)."""
+    return min(MAX_OPENING_M, width_m + wider_m)
 
 
 def patch_at_image_edge(reading: TouchReading, pad_width_mm: float, imaged_width_mm: float) -> bool:
@@ -185,8 +202,14 @@ class LiftCan(Task):
                 blind += 1
                 ctx.correction("grasp squareness, patch off the image", "both pads press (indentation) but "
                                "neither image shows a contact patch", angle_deg=math.degrees(angle), blind_turn=blind)
-                yield from open_to(ctx, ctx.target[7] + 0.012, primitive="regrasp")
-                yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp")
+                # the turn back goes towards square, where the can is narrower between the pads: a little
+                # opening frees it, the pads cannot catch it while they turn, and the close that follows
+                # starts nearer the can
+                back = blind == 2
+                yield from open_to(ctx, regrasp_opening_m(ctx.target[7], TOWARDS_SQUARE_OPEN_M if back else
+                                                          REGRASP_OPEN_M), primitive="regrasp")
+                yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp",
+                                        turn_rad_s=TOWARDS_SQUARE_TURN_RAD_S if back else 1.2)
                 continue
             gel_mm, imaged_mm = self.profile.gel_width_mm, self.profile.imaged_width_mm
             off_image = any(patch_at_image_edge(touch[pad], gel_mm, imaged_mm) for pad in ("left", "right"))
@@ -195,11 +218,12 @@ class LiftCan(Task):
             press = ctx.indentation_mm()
             angle = squareness_from_touch(touch["left"], touch["right"], gel_mm, imaged_mm,
                                           (press["left"], press["right"]))
-            if abs(angle) <= SQUARE_TOLERANCE_RAD or attempt - blind == 2 or not ctx.corrections_enabled:
+            tolerance = SQUARE_TOLERANCE_RAD if blind == 0 else AFTER_BLIND_TOLERANCE_RAD
+            if abs(angle) <= tolerance or attempt - blind == 2 or not ctx.corrections_enabled:
                 break
             ctx.correction("grasp squareness", "contact patch depth gradient and centroid along the can",
                            angle_deg=math.degrees(angle), patch_span_mm=touch["left"].span_x_mm)
-            yield from open_to(ctx, ctx.target[7] + 0.012, primitive="regrasp")
+            yield from open_to(ctx, regrasp_opening_m(ctx.target[7], REGRASP_OPEN_M), primitive="regrasp")
             yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp")
         yield from move_to(ctx, ctx.target[:3] + np.array([0, 0, LIFT_M]), speed_m_s=0.10, primitive="lift")
         # the top must come up: turn about the closing axis (gripper x) the way that lifts the can's +z end

@@ -66,7 +66,7 @@ def test_lift_can_on_the_gf225_has_time_left_after_a_blind_turn_the_wrong_way(mo
     assert [c["what"] for c in o.memory["corrections"]] == [c["what"] for c in blind]
     assert o.success and o.safe and o.steps < 285
     monkeypatch.setattr(lift_can, "TOWARDS_SQUARE_OPEN_M", lift_can.REGRASP_OPEN_M)
-    monkeypatch.setattr(lift_can, "TOWARDS_SQUARE_TURN_RAD_S", 1.2)
+    monkeypatch.setattr(lift_can, "TOWARDS_SQUARE_TURN_RAD_S", lift_can.REGRASP_TURN_RAD_S)
     monkeypatch.setattr(lift_can, "AFTER_BLIND_TOLERANCE_RAD", lift_can.SQUARE_TOLERANCE_RAD)
     monkeypatch.setattr(lift_can, "regrasp_opening_m", lambda width_m, wider_m: width_m + wider_m)
     before = outcome("lift_can", "gf225", 101)

@@ -74,8 +74,9 @@ BLIND_TURN_RAD = math.radians(12.0)  # the middle of the camera's 6-18 deg yaw e
 MAX_BLIND_TURNS = 2
 EDGE_MM = 0.25  # a patch ending this close to the image's edge runs off it
 REGRASP_OPEN_M = 0.012  # a re-grasp opens this much wider before it turns the hand
+REGRASP_TURN_RAD_S = 1.2  # and turns the hand this fast
 TOWARDS_SQUARE_OPEN_M = 0.003  # the same for the blind turn back, towards square
-TOWARDS_SQUARE_TURN_RAD_S = 2.4  # and that turn's speed (the others turn at rotate_about's 1.2 rad/s)
+TOWARDS_SQUARE_TURN_RAD_S = 2.4
 
 
 def regrasp_opening_m(width_m: float, wider_m: float) -> float:
@@ -209,7 +210,7 @@ class LiftCan(Task):
                 yield from open_to(ctx, regrasp_opening_m(ctx.target[7], TOWARDS_SQUARE_OPEN_M if back else
                                                           REGRASP_OPEN_M), primitive="regrasp")
                 yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp",
-                                        turn_rad_s=TOWARDS_SQUARE_TURN_RAD_S if back else 1.2)
+                                        turn_rad_s=TOWARDS_SQUARE_TURN_RAD_S if back else REGRASP_TURN_RAD_S)
                 continue
             gel_mm, imaged_mm = self.profile.gel_width_mm, self.profile.imaged_width_mm
             off_image = any(patch_at_image_edge(touch[pad], gel_mm, imaged_mm) for pad in ("left", "right"))
@@ -224,7 +225,8 @@ class LiftCan(Task):
             ctx.correction("grasp squareness", "contact patch depth gradient and centroid along the can",
                            angle_deg=math.degrees(angle), patch_span_mm=touch["left"].span_x_mm)
             yield from open_to(ctx, regrasp_opening_m(ctx.target[7], REGRASP_OPEN_M), primitive="regrasp")
-            yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp")
+            yield from rotate_about(ctx, np.array([0.0, 0.0, 1.0]), angle, primitive="regrasp",
+                                    turn_rad_s=REGRASP_TURN_RAD_S)
         yield from move_to(ctx, ctx.target[:3] + np.array([0, 0, LIFT_M]), speed_m_s=0.10, primitive="lift")
         # the top must come up: turn about the closing axis (gripper x) the way that lifts the can's +z end
         closing_axis = quat_to_mat(ctx.target[3:7])[:, 0]

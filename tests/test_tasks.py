@@ -147,7 +147,8 @@ def test_the_chord_line_is_a_cylinders_axis_where_the_principal_direction_is_not
 
 def test_the_chord_line_leaves_out_chords_the_border_cuts():
     grid = sensor_grid(get_sensor("gelsight_mini"), 1)
-    # a strip at 60 deg that leaves the image through its right side: its row-chords there are cut short
+    # a strip at 60 deg that leaves the image through its right side: its chords there are cut short (kept,
+    # they would turn the line by 2.4 deg)
     half_width = grid.x_mm[-1]
     side = _cylinder_strip(grid, math.radians(60), (half_width - 4.0, 0.0), lambda s: np.full_like(s, 0.3))
     assert (side[:, -1] < 0).any()

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks import insert_tube
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
@@ -63,5 +64,5 @@ def test_a_scene_without_the_option_it_sweeps_is_refused(monkeypatch):
 def test_the_expert_run_reports_its_attempts_and_slip():
     run = run_expert_seed(ROWS["task (1 ms, boxes, solref 0.002 s, Newton)"], 0)
     assert run["success"] and run["safe"] and run["found_the_hole"]
-    assert 1 <= run["attempts"] <= 7
+    assert 1 <= run["attempts"] <= 3 + insert_tube.SEARCH_POINTS  # the first, the ring, two steps across
     assert 0.0 < run["max_in_hand_slip_mm"] < 10.0

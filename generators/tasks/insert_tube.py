@@ -31,6 +31,13 @@ Expert (closed loop; corrections in ``memory['corrections']``)
     the shear and the step (``shear_mm``, ``step_x_mm``, ``step_y_mm``, ``move_mm``). Every aim is for the
     tube's end where the pads place it in the hand (their shear along and across the pads and the marker
     field's rotation: the tube slides about 0.8 mm up the pads and turns a little at each miss).
+    **step across the grasp** (once, a correction): the grip holds the tube rigidly along the pads' normal (the
+    hole frame's x), so a probe more than about 1.3 mm off that way catches on the chamfer instead of sliding
+    in; its end then stops 1.0-1.9 mm below the entrance (the flat plate stops it at about 0.1 mm). When a ring
+    point's probe is blocked with the end ``CHAMFER_MISS_M`` or more below the entrance (the hand's travel
+    less the slide up the pads), the next probes are ``CHAMFER_STEP_M`` to either side of it along the pads'
+    normal, the side nearer the first attempt first, then the rest of the ring (recorded with
+    ``end_depth_mm``, the step and ``move_mm``).
     **straighten** (before the push): when the marker field's rotation says the tube turned in the grasp by
     more than 1.5 deg (the chamfer turns it, up to about 5 deg), turn the gripper back by that angle about the
     pads' normal through the tube's end, at 0.3 rad/s (recorded with ``turn_deg``, ``pivot_deg``): pushed
@@ -44,7 +51,8 @@ Safety (per step)
     slides it about 0.8 mm up the pads; UniVTAC allows 30 mm). The validators hold the pads' recorded slip
     (``tactile/{pad}/slip_mm``, the sliding path) to 20 mm (``max_pad_slip_mm``) instead of their 1 mm default.
 Step limit
-    300 policy steps (6 s at 50 Hz); the expert takes 110-254 (seeds 0-99).
+    300 policy steps (6 s at 50 Hz); the expert takes 110-254 (seeds 0-99; up to 284 on the GF225's
+    development seeds 300-699).
 Version history
     v0: first version.
 """
@@ -86,6 +94,10 @@ PROBE_SPEED_M_S = 0.01
 BLOCKED_SHEAR_MM = 0.75  # axial shear during one probe that means the surface blocks the tube
 SEARCH_RADIUS_M = 0.003
 SEARCH_POINTS = 6
+# a blocked probe whose tube end got this far below the entrance was on the chamfer (the flat plate stops it
+# at about 0.1 mm; the chamfer, at 1.0-1.9 mm when the hole is 1.3-2.4 mm off along the pads' normal)
+CHAMFER_MISS_M = 0.0007
+CHAMFER_STEP_M = 0.0015  # the step along the pads' normal to either side of a probe that ended on the chamfer
 INSERT_DEPTH_M = 0.035
 INSERT_SPEED_M_S = 0.02
 STRAIGHTEN_TURN_RAD = math.radians(1.5)  # a larger turn in the grasp is straightened before the push
@@ -251,25 +263,40 @@ class InsertTube(Task):
         first = ctx.target[:3].copy()
         offset = in_hole_frame(pos, quat, first)[:2]  # where the set-up aimed (the camera's estimate)
         shear = PadShear(ctx)
-        points = [np.zeros(2)] + search_ring()
+        across = np.array([1.0, 0.0])  # hole frame x: the gripper's x, the pads' normal, where the grip cannot give
+        # (point in the hole frame relative to the first attempt, why it is probed); a point is dropped once probed
+        plan: list[tuple[np.ndarray, str]] = [(np.zeros(2), "first")] + [(p, "ring") for p in search_ring()]
+        stepped_across = False  # the steps across the grasp are made once, after the first miss on the chamfer
         ctx.memory.update(attempts=0, inside=False)
         blocked_by = 0.0  # the last probe's axial shear, mm
-        for k, step in enumerate(points):
-            if k > 0:
+        last = np.zeros(2)
+        chamfer_depth_m = 0.0  # how far below the entrance the tube's end got on the chamfer, m
+        while plan:
+            step, why = plan.pop(0)
+            if ctx.memory["attempts"] > 0:
                 if not (self.corrections and ctx.corrections_enabled):
                     break
-                ctx.correction("search step after a miss", "axial shear: the tube slid up the pads by more than "
-                               f"{BLOCKED_SHEAR_MM} mm during the probe (blocked by the surface)",
-                               shear_mm=blocked_by, step_x_mm=step[0] * 1000, step_y_mm=step[1] * 1000,
-                               move_mm=float(np.linalg.norm(step - points[k - 1]) * 1000))
+                if why == "ring":
+                    ctx.correction("search step after a miss", "axial shear: the tube slid up the pads by more "
+                                   f"than {BLOCKED_SHEAR_MM} mm during the probe (blocked by the surface)",
+                                   shear_mm=blocked_by, step_x_mm=step[0] * 1000, step_y_mm=step[1] * 1000,
+                                   move_mm=float(np.linalg.norm(step - last) * 1000))
+                else:
+                    ctx.correction("step across the grasp after a miss on the chamfer",
+                                   f"axial shear over {BLOCKED_SHEAR_MM} mm after the tube's end went "
+                                   f"{CHAMFER_MISS_M * 1000:.1f} mm or more below the entrance (hand travel less "
+                                   "the slide up the pads): on the chamfer, the hole across the grasp",
+                                   shear_mm=blocked_by, end_depth_mm=chamfer_depth_m * 1000, step_x_mm=step[0] * 1000,
+                                   step_y_mm=step[1] * 1000, move_mm=float(np.linalg.norm(step - last) * 1000))
             # aim the tube's end, wherever the pads say it has moved to in the hand
             end = pos + mat @ np.array([*(offset + step), PROBE_START_M])
             above = end - mat @ shear.end_in_hand_m(TUBE_HALF_M)
-            if k > 0:
+            if ctx.memory["attempts"] > 0:
                 yield from move_to(ctx, ctx.target[:3] + axis * 0.002, speed_m_s=0.04, primitive="retry")
                 yield from move_to(ctx, above + axis * 0.002, speed_m_s=0.04, primitive="retry")
             yield from move_to(ctx, above, speed_m_s=0.04, primitive="probe")
-            ctx.memory["attempts"] = k + 1
+            ctx.memory["attempts"] += 1
+            last = step
             before = shear.axial_mm()
             blocked_by = 0.0
             for probe in move_to(ctx, above - axis * PROBE_TRAVEL_M, speed_m_s=PROBE_SPEED_M_S, primitive="probe"):
@@ -280,6 +307,17 @@ class InsertTube(Task):
             if blocked_by <= BLOCKED_SHEAR_MM:
                 ctx.memory["inside"] = True
                 break
+            # how far below the entrance the tube's end got: the hand's travel less the slide up the pads
+            end_depth_m = float((above - ctx.target[:3]) @ axis) - PROBE_START_M - blocked_by / 1000.0
+            if end_depth_m >= CHAMFER_MISS_M and why == "ring" and not stepped_across:
+                stepped_across, chamfer_depth_m = True, end_depth_m
+                # the chamfer let the tube in partly: the hole is within about 2.5 mm, and along the pads'
+                # normal, where the grip holds the tube rigidly (across it the tube turns in the grasp and
+                # slides in from 2.2 mm); probe either side, first the one nearer the first attempt (whose
+                # error is 1-4 mm, any distance as likely: the nearer ring is the denser)
+                sides = [step + side * CHAMFER_STEP_M * across for side in (1.0, -1.0)]
+                sides.sort(key=lambda p: float(np.linalg.norm(p)))
+                plan[:0] = [(p, "across") for p in sides]
         if not ctx.memory["inside"]:  # every probe was blocked: pushing on would only drive the tube up the pads
             yield from wait(ctx, 0.2)
             return

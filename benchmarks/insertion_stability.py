@@ -14,8 +14,12 @@ seeds (the task's own layouts), for its success rate with a 95 % Wilson interval
 push says whether the contact holds, the expert whether the task does.
 
     python benchmarks/insertion_stability.py [--trials 8] [--expert-seeds 20]
+    python benchmarks/insertion_stability.py --experts-only   # after an expert change: that column alone
 
-Writes benchmarks/results/insertion_stability.json and docs/figures/insertion_stability.png.
+Writes benchmarks/results/insertion_stability.json and docs/figures/insertion_stability.png. ``--experts-only``
+reruns the expert's column of the stored JSON on its settings and seeds and keeps the push trials and their
+timings as measured (they do not depend on the expert, and timings from another machine would not compare);
+the JSON's ``experts_rerun`` says when.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import math
 import re
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import matplotlib
@@ -204,17 +209,21 @@ def main() -> None:
     parser.add_argument("--expert-seeds", type=int, default=20,
                         help="seeds of the task's whole expert per setting (its success rate, with a 95 %% interval)")
     parser.add_argument("--plot-only", action="store_true", help="redraw the chart from the stored JSON")
+    parser.add_argument("--experts-only", action="store_true",
+                        help="rerun the stored JSON's expert column (its seeds per setting), keep the push trials")
     args = parser.parse_args()
     if args.plot_only:
         stored = json.loads((RESULTS / "insertion_stability.json").read_text())
         plot(stored["rows"], stored["sdf"])
+        return
+    if args.experts_only:
+        rerun_experts(RESULTS / "insertion_stability.json")
         return
     info = machine(threads_used=1)
     rows = []
     for row in settings():
         trials = [run_trial(row, seed) for seed in range(args.trials)]
         experts = [run_expert_seed(row, seed) for seed in range(args.expert_seeds)]
-        expert_wins = sum(e["success"] for e in experts)
         summary = {
             "label": label(row), "group": row["group"], "timestep_s": row["timestep_s"], "collider": row["collider"],
             "solver": row["solver"], "option": row["option"], "contact": {"timeconst_s": row["contact"].timeconst_s,
@@ -229,10 +238,7 @@ def main() -> None:
             # of which MuJoCo's collision detection and its constraint solve (noslip included), medians
             "us_per_step_collision": float(np.median([t["us_per_step_collision"] for t in trials])),
             "us_per_step_constraint": float(np.median([t["us_per_step_constraint"] for t in trials])),
-            "expert_seeds": len(experts), "expert_success": expert_wins / len(experts),
-            "expert_success_95": [round(v, 3) for v in wilson_interval(expert_wins, len(experts))],
-            "expert_safe": sum(e["safe"] for e in experts) / len(experts),
-            "expert_runs": experts,  # per seed: attempts, whether a probe went in, the tube's largest slip in the hand
+            **expert_column(experts),
         }
         summary["breaks"] = bool(summary["inserted"] < 0.9 or summary["tunnelled"] > 0 or summary["non_finite"] > 0
                                  or summary["peak_penetration_mm"] > 0.25)
@@ -255,6 +261,35 @@ def main() -> None:
     plot(rows, sdf)
 
 
+def expert_column(experts: list[dict[str, Any]]) -> dict[str, Any]:
+    """A row's expert fields from its per-seed runs (``run_expert_seed``)."""
+    wins = sum(e["success"] for e in experts)
+    return {"expert_seeds": len(experts), "expert_success": wins / len(experts),
+            "expert_success_95": [round(v, 3) for v in wilson_interval(wins, len(experts))],
+            "expert_safe": sum(e["safe"] for e in experts) / len(experts),
+            "expert_runs": experts}  # per seed: attempts, whether a probe went in, the tube's largest slip in the hand
+
+
+def rerun_experts(path: Path) -> None:
+    """Rerun the expert column of the JSON at ``path`` on each stored setting's seeds; the rest is kept."""
+    stored = json.loads(path.read_text())
+    by_label = {label(row): row for row in settings()}
+    missing = [r["label"] for r in stored["rows"] if r["label"] not in by_label]
+    if missing:
+        raise SystemExit(f"{path}: settings no longer in settings(): {', '.join(missing)}; rerun the whole sweep")
+    for summary in stored["rows"]:
+        row = by_label[summary["label"]]
+        before = summary["expert_success"]
+        summary.update(expert_column([run_expert_seed(row, seed) for seed in range(summary["expert_seeds"])]))
+        print(f"{summary['label']:40s} expert {before:.0%} -> {summary['expert_success']:.0%} "
+              f"({summary['expert_safe']:.0%} safe)", flush=True)
+    stored["experts_rerun"] = {"date": time.strftime("%Y-%m-%d"), "machine": machine(threads_used=1),
+                               "note": "the expert column rerun alone after an expert change; the push trials "
+                                       "and timings are the first run's (machine above them)"}
+    path.write_text(json.dumps(stored, indent=1))
+    plot(stored["rows"], stored["sdf"])
+
+
 def plot(rows: list[dict[str, Any]], sdf: dict[str, Any]) -> None:
     fig, grid = plt.subplots(2, 3, figsize=(19, 10))
     axes = grid.ravel()
@@ -264,6 +299,7 @@ def plot(rows: list[dict[str, Any]], sdf: dict[str, Any]) -> None:
               ("jammed", "jammed"), ("tunnelled", "tunnelled (tube surface > 1 mm in a wall)"),
               ("expert_success", "the task's expert (retries by touch): success, 95 % interval"))
     for ax, (key, title) in zip(axes, panels):
+        named: list[tuple[float, float]] = []  # (us per step, value) of the labels placed on this panel
         for group, colour in colours.items():
             mine = [r for r in rows if r["group"] == group]
             if key not in (mine[0] if mine else {}):
@@ -281,8 +317,13 @@ def plot(rows: list[dict[str, Any]], sdf: dict[str, Any]) -> None:
                 if r["breaks"] or group == "task" or named_here:
                     ax.scatter(r["us_per_step"], r[key], facecolors="none", edgecolors="red" if r["breaks"] else
                                "black", s=160, linewidths=1.2)
+                    # labels of points that nearly coincide are stacked downwards instead of printed over
+                    # one another
+                    near = sum(abs(math.log(u / r["us_per_step"])) < 0.4 and abs(v - r[key]) < 0.03
+                               for u, v in named)
+                    named.append((r["us_per_step"], r[key]))
                     ax.annotate(r["label"], (r["us_per_step"], r[key]), fontsize=7,
-                                xytext=(4, 6) if group == "task" else (4, -10), textcoords="offset points")
+                                xytext=(4, 6) if group == "task" else (4, -10 - 9 * near), textcoords="offset points")
         ax.axvline(sdf["sdf_nut"]["us_per_step"], color="grey", ls=":", lw=1)
         ax.text(sdf["sdf_nut"]["us_per_step"], ax.get_ylim()[1] * 0.5, " SDF contact alone\n (threaded nut)",
                 fontsize=7, color="grey", rotation=90, va="center")

@@ -3,6 +3,7 @@ the task's would chart the task twice), and the whole-expert run reports what th
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from pathlib import Path
@@ -66,3 +67,23 @@ def test_the_expert_run_reports_its_attempts_and_slip():
     assert run["success"] and run["safe"] and run["found_the_hole"]
     assert 1 <= run["attempts"] <= 3 + insert_tube.SEARCH_POINTS  # the first, the ring, two steps across
     assert 0.0 < run["max_in_hand_slip_mm"] < 10.0
+
+
+def test_experts_only_reruns_the_expert_column_and_keeps_the_push(tmp_path, monkeypatch):
+    import insertion_stability
+    monkeypatch.setattr(insertion_stability, "plot", lambda rows, sdf: None)  # the docs' chart stays as it is
+    task_label = "task (1 ms, boxes, solref 0.002 s, Newton)"
+    stored = {"rows": [{"label": task_label, "inserted": 0.875, "us_per_step": 123.0, "expert_seeds": 1,
+                        "expert_success": 0.0, "expert_success_95": [0.0, 0.79], "expert_safe": 0.0,
+                        "expert_runs": []}], "sdf": {}}
+    path = tmp_path / "insertion_stability.json"
+    path.write_text(json.dumps(stored))
+    insertion_stability.rerun_experts(path)
+    row = json.loads(path.read_text())["rows"][0]
+    assert row["inserted"] == 0.875 and row["us_per_step"] == 123.0  # the push trials and timings as stored
+    assert row["expert_success"] == 1.0 and row["expert_safe"] == 1.0 and [r["seed"] for r in row["expert_runs"]] == [0]
+    assert "experts_rerun" in json.loads(path.read_text())
+    stored["rows"][0]["label"] = "a setting since removed"
+    path.write_text(json.dumps(stored))
+    with pytest.raises(SystemExit, match="insertion_stability.json: settings no longer in settings"):
+        insertion_stability.rerun_experts(path)

@@ -51,8 +51,9 @@ Safety (per step)
     slides it about 0.8 mm up the pads; UniVTAC allows 30 mm). The validators hold the pads' recorded slip
     (``tactile/{pad}/slip_mm``, the sliding path) to 20 mm (``max_pad_slip_mm``) instead of their 1 mm default.
 Step limit
-    300 policy steps (6 s at 50 Hz); the expert takes 110-254 (seeds 0-99; up to 284 on the GF225's
-    development seeds 300-699).
+    300 policy steps (6 s at 50 Hz); the expert takes 110-293 (seeds 0-99: 293 is seed 14, whose first ring
+    point read as on the chamfer, both steps across it were blocked and the ring's last point went in; up to
+    284 on the GF225's development seeds 300-699).
 Version history
     v0: first version.
 """

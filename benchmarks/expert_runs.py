@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from univtac_data.generators.tasks.base import ExpertContext, Task, TaskConfig
-from univtac_data.generators.tasks.session import TaskSession
+from univtac_data.generators.tasks.base import Task, TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 
 _TASK = TaskConfig()
 CONTROL_TICK_S = _TASK.timestep_s * _TASK.control_period_steps  # the tasks' controller tick (2 ms)
@@ -38,20 +38,13 @@ class ExpertRun:
 def whole_expert(task: Task, seed: int) -> ExpertRun:
     """Run ``task``'s expert from ``seed`` to its end or the task's step limit, not recorded; a non-finite state
     stops it and counts as a failure and a violation."""
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        finite = True
-        for step in task.expert(ctx):
-            if session.steps >= task.step_limit:
-                break
-            state = session.step(step.action, step.primitive)
+    with expert_rollout(task, seed) as run:
+        session, state, finite = run.session, run.state, True
+        for step in run.steps():
+            state = run.take(step)
             if not session.sim.finite():
                 finite = False
                 break
         return ExpertRun(seed, bool(finite and task.success(state)), bool(finite and session.safe), finite,
-                         session.first_violation() if finite else "non-finite state", dict(ctx.memory),
+                         session.first_violation() if finite else "non-finite state", dict(run.ctx.memory),
                          float(session.max_in_hand_slip_mm))
-    finally:
-        session.close()

@@ -34,7 +34,8 @@ from common import FIGURES, RESULTS, machine  # noqa: E402
 from expert_runs import swept_config  # noqa: E402
 
 from univtac_data.generators.scene.threads import one_blas_thread  # noqa: E402
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.base import TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.expert_rollout import expert_rollout  # noqa: E402
 from univtac_data.generators.tasks.pull_out_key import (  # noqa: E402
     STOP_RAD,
     STOP_SOLREF,
@@ -42,7 +43,6 @@ from univtac_data.generators.tasks.pull_out_key import (  # noqa: E402
     TURN_DAMPING_NMS,
     PullOutKey,
 )
-from univtac_data.generators.tasks.session import TaskSession  # noqa: E402
 from univtac_data.schema.sensors import get_sensor  # noqa: E402
 
 SEEDS = (0, 1, 2, 3, 4, 5)
@@ -88,9 +88,8 @@ class SweptKey(PullOutKey):
 def run_seed(setting: Setting, seed: int) -> dict[str, Any]:
     config = swept_config(setting.timestep_s)
     task = SweptKey(config, setting)
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
+    with expert_rollout(task, seed) as run:
+        session, ctx, state = run.session, run.ctx, run.state
         model, data = session.sim.model, session.sim.data
         turn, pull = model.joint("key_turn"), model.joint("key_pull")
         qadr, dadr, padr = turn.qposadr[0], turn.dofadr[0], pull.dofadr[0]
@@ -98,13 +97,10 @@ def run_seed(setting: Setting, seed: int) -> dict[str, Any]:
         # kinetic energy of the key's two joints: its inertia about the axis plus the armatures
         inertia = float(model.body_inertia[body][2] + model.dof_armature[dadr])
         mass = float(model.body_subtreemass[body] + model.dof_armature[padr])
-        ctx = ExpertContext(session, session.rng)
         peak_angle, peak_energy, deepest, finite = -math.inf, 0.0, 0.0, True
         start = time.perf_counter()
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
-            state = session.step(step.action, step.primitive)
+        for step in run.steps():
+            state = run.take(step)
             if not session.sim.finite():
                 finite = False
                 break
@@ -122,8 +118,6 @@ def run_seed(setting: Setting, seed: int) -> dict[str, Any]:
                 "max_indentation_mm": deepest, "peak_energy_j": peak_energy,
                 "us_per_physics_step": wall / max(1, session.steps * config.ticks_per_step
                                                   * config.control_period_steps) * 1e6}
-    finally:
-        session.close()
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:

@@ -34,9 +34,9 @@ from common import FIGURES, RESULTS, machine  # noqa: E402
 
 from univtac_data.generators.scene.gripper import PADS  # noqa: E402
 from univtac_data.generators.scene.pad_forces import pad_forces  # noqa: E402
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.base import TaskConfig  # noqa: E402
+from univtac_data.generators.tasks.expert_rollout import expert_rollout  # noqa: E402
 from univtac_data.generators.tasks.registry import TASK_NAMES, make_task  # noqa: E402
-from univtac_data.generators.tasks.session import TaskSession  # noqa: E402
 from univtac_data.schema.sensors import SENSORS  # noqa: E402
 
 HELD_FORCE_N = 0.05  # a pad presses when the tactile model gives it more than this
@@ -46,24 +46,17 @@ def held_frames(task_name: str, sensor: str, seed: int) -> dict[str, Any]:
     """One recorded expert run: per held frame, the indentation (mm), MuJoCo's and the tactile model's normal
     force summed over both pads (N)."""
     task = make_task(task_name, TaskConfig(sensor=sensor, cameras=False))
-    session = TaskSession(task, record=True)
-    try:
-        session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        depth, mujoco_n, tactile_n = [], [], []
-        for step in task.expert(ctx):
-            if session.steps >= task.step_limit:
-                break
-            state = session.step(step.action, step.primitive)
-            frame = session.sim.frames[-1]
-            gel = [float(frame.tactile[pad].normal_force_n) for pad in PADS]
+    depth, mujoco_n, tactile_n = [], [], []
+    with expert_rollout(task, seed, record=True) as run:
+        sim = run.session.sim
+        for step in run.steps():
+            state = run.take(step)
+            gel = [float(sim.frames[-1].tactile[pad].normal_force_n) for pad in PADS]
             if min(gel) > HELD_FORCE_N:
-                pads = pad_forces(session.sim.model, session.sim.data)
+                pads = pad_forces(sim.model, sim.data)
                 depth.append(state.indentation_mm)
                 mujoco_n.append(sum(pads[pad].normal_n for pad in PADS))
                 tactile_n.append(sum(gel))
-    finally:
-        session.close()
     ratio = np.asarray(mujoco_n) / np.asarray(tactile_n)
     return {"task": task_name, "sensor": sensor, "seed": seed, "held_frames": len(ratio),
             "indentation_mm_median": float(np.median(depth)), "mujoco_n_median": float(np.median(mujoco_n)),

@@ -130,6 +130,31 @@ def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 
     return DemoCache(tensors, len(episodes), rate, subsample, stride)
 
 
+def demonstrations_sha256(path: str | Path, task: str) -> tuple[str, int]:
+    """A fingerprint of ``task``'s demonstrations at ``path``: SHA-256 over each episode's seed and recorded
+    actions (as little-endian float64), in seed order, and the number of episodes. It does not depend on the
+    storage backend, the compression or the camera images, so demonstrations regenerated elsewhere with the
+    same code and seeds give the same fingerprint, and a policy run says which demonstrations it learnt from."""
+    import hashlib
+
+    from univtac_data import CorruptFileError, Dataset, DatasetError
+
+    try:
+        dataset = Dataset.open(path)
+        rows = sorted((row for row in dataset.index.values() if row.name == task), key=lambda row: row.seed)
+        if not rows:
+            raise SystemExit(f"{path}: no episode of task {task!r}")
+        digest = hashlib.sha256()
+        for row in rows:
+            with dataset.open_episode(row.episode_id) as handle:
+                action = np.ascontiguousarray(handle.read("robot/action"), dtype="<f8")
+            digest.update(f"{row.seed} {action.shape}\n".encode())
+            digest.update(action.tobytes())
+    except (DatasetError, CorruptFileError) as err:  # each names the file and the problem
+        raise SystemExit(str(err)) from None
+    return digest.hexdigest(), len(rows)
+
+
 def recorded_touch(obs: dict[str, torch.Tensor]) -> torch.Tensor:
     """(2, 4) ``TOUCH_SIGNALS`` of both pads from a recorded frame (``PolicyChunkDataset`` observations), the
     same numbers ``act_policy.touch_signals`` reads from the environment at rollout."""
@@ -308,6 +333,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if not config.uses_tactile:
         for pad in PADS:
             cache.tensors.pop(f"tactile_{pad}")
+    demos_sha256, _ = demonstrations_sha256(args.data, args.task)
     t_read = time.perf_counter() - t0
     log(f"  {len(cache)} samples from {cache.episodes} episodes at {cache.demo_rate_hz:g} Hz "
         f"(one action in {cache.subsample}: {config.rate_hz:g} Hz) in {t_read:.0f} s")
@@ -317,6 +343,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     t_train = time.perf_counter() - t1
     summary = {
         "task": args.task, "variant": args.variant, "data": str(args.data), "demos": cache.episodes,
+        "demonstrations_sha256": demos_sha256,
         "samples": len(cache), "demo_rate_hz": cache.demo_rate_hz, "rate_hz": config.rate_hz, "chunk": config.chunk,
         "steps": args.steps, "batch_size": args.batch_size, "epochs": args.steps * args.batch_size / len(cache),
         "lr": args.lr, "seed": args.seed, "pose": config.pose, "opening": config.opening, "history": config.history,
@@ -432,6 +459,7 @@ def collect_rows(runs: list[Path]) -> list[dict[str, Any]]:
             "camera_size": train_s["camera_size"], "ensemble_k": ev["ensemble_k"],
             "seed": train_s.get("seed", 0), "pose": train_s.get("pose", "absolute"),
             "opening": train_s.get("opening", "absolute"), "history": train_s.get("history", 0),
+            "demonstrations_sha256": train_s.get("demonstrations_sha256"),
         })
     return sorted(rows, key=row_order)
 
@@ -441,18 +469,20 @@ def row_order(row: dict[str, Any]) -> tuple[str, int, int]:
     return row["task"], VARIANTS.index(row["variant"]), int(row.get("seed", 0))
 
 
-def recipe(row: dict[str, Any]) -> tuple[str, str, int, float]:
-    """The targets a run was trained on (pose, opening), the policy steps of past it read, and the temporal
-    ensembling weight k it was evaluated with; runs from before those options are absolute, read the present
-    only and were evaluated with ACT's k = 0.01."""
+def recipe(row: dict[str, Any]) -> tuple[str, str, int, float, str | None]:
+    """The targets a run was trained on (pose, opening), the policy steps of past it read, the temporal
+    ensembling weight k it was evaluated with, and the demonstrations it learnt from
+    (``demonstrations_sha256``); runs from before those options are absolute, read the present only, were
+    evaluated with ACT's k = 0.01 and did not record their demonstrations (None)."""
     return (row.get("pose", "absolute"), row.get("opening", "absolute"), int(row.get("history", 0)),
-            float(row.get("ensemble_k", 0.01)))
+            float(row.get("ensemble_k", 0.01)), row.get("demonstrations_sha256"))
 
 
 def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per task, variant and recipe: the rollouts of every training seed together, with each seed's
     own rate beside them (the binomial interval of the pool does not hold the spread between training runs;
-    the per-seed rates show it). Runs trained on other targets are never pooled together."""
+    the per-seed rates show it). Runs trained on other targets or other demonstrations are never pooled
+    together."""
     from univtac_data.envs.evaluate import wilson_interval
 
     out = []
@@ -460,7 +490,7 @@ def pooled_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         group = [r for r in rows if (r["task"], r["variant"], recipe(r)) == key]
         n, k = sum(r["rollouts"] for r in group), sum(r["successes"] for r in group)
         out.append({"task": key[0], "variant": key[1], "pose": key[2][0], "opening": key[2][1], "history": key[2][2], "ensemble_k": key[2][3],
-                    "training_seeds": [r["seed"] for r in group],
+                    "demonstrations_sha256": key[2][4], "training_seeds": [r["seed"] for r in group],
                     "rollouts": n, "successes": k, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
                     "per_seed_success_rate": [r["success_rate"] for r in group],
                     "unsafe_rate": sum(r["unsafe_rate"] * r["rollouts"] for r in group) / n,
@@ -480,7 +510,8 @@ def difference_interval(k1: int, n1: int, k2: int, n2: int) -> tuple[float, floa
 
 
 def touch_effects(pooled: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per task and recipe, each tactile variant's success minus vision's (points) with its 95 % interval."""
+    """Per task and recipe, each tactile variant's success minus vision's (points) with its 95 % interval: only
+    between policies trained on the same demonstrations (``recipe``)."""
     out = []
     for base in (r for r in pooled if r["variant"] == "vision"):
         for row in (r for r in pooled if r["task"] == base["task"] and r["variant"] != "vision"
@@ -488,7 +519,7 @@ def touch_effects(pooled: list[dict[str, Any]]) -> list[dict[str, Any]]:
             d, lo, hi = difference_interval(row["successes"], row["rollouts"], base["successes"], base["rollouts"])
             out.append({"task": base["task"], "variant": row["variant"], "pose": base["pose"],
                         "opening": base["opening"], "history": base["history"], "ensemble_k": base["ensemble_k"],
-                        "points": 100 * d,
+                        "demonstrations_sha256": base.get("demonstrations_sha256"), "points": 100 * d,
                         "interval95_points": [100 * lo, 100 * hi], "goal_points": 15.0,
                         "goal_met": 100 * d >= 15.0})
     return out
@@ -517,9 +548,18 @@ def chart(pooled: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     # one group of bars per task and recipe (a task's recipes differ in history or ensembling k)
-    groups = sorted({(r["task"], recipe(r)) for r in pooled})
+    # (runs that did not record their demonstrations sort first)
+    groups = sorted({(r["task"], recipe(r)) for r in pooled}, key=lambda g: (g[0], g[1][:4], g[1][4] or ""))
     several = {task for task, _ in groups if sum(t == task for t, _ in groups) > 1}
-    labels = [task + (f"\nhistory {rec[2]}, k = {rec[3]:g}" if task in several else "") for task, rec in groups]
+
+    def label(task: str, rec: tuple[str, str, int, float, str | None]) -> str:
+        if task not in several:
+            return task
+        demos = {r[4] for t, r in groups if t == task}
+        return (task + f"\nhistory {rec[2]}, k = {rec[3]:g}"
+                + (f", demos {(rec[4] or 'unrecorded')[:8]}" if len(demos) > 1 else ""))
+
+    labels = [label(task, rec) for task, rec in groups]
     colours = {"vision": "#7f7f7f", "vision_tactile": "#1f77b4", "vision_encoder": "#d62728"}
     per_row = 5  # groups a panel: more tasks wrap onto further panels instead of one unreadably wide chart
     panels = [list(range(i, min(i + per_row, len(groups)))) for i in range(0, len(groups), per_row)]
@@ -559,8 +599,9 @@ def chart(pooled: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
-def run_key(row: dict[str, Any]) -> tuple[str, str, int, tuple[str, str, int, float]]:
-    """What makes two rows the same run: task, variant, training seed and recipe."""
+def run_key(row: dict[str, Any]) -> tuple[str, str, int, tuple[str, str, int, float, str | None]]:
+    """What makes two rows the same run: task, variant, training seed and recipe (a run on other
+    demonstrations is another run, not a rerun)."""
     return row["task"], row["variant"], int(row.get("seed", 0)), recipe(row)
 
 
@@ -579,6 +620,12 @@ def read_json_arg(flag: str, path: str) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise SystemExit(f"{flag} {path}: not a JSON object")
     return value
+
+
+def cmd_fingerprint(args: argparse.Namespace) -> int:
+    sha, episodes = demonstrations_sha256(args.data, args.task)
+    print(f"{sha}  {args.task}, {episodes} demonstrations in {args.data}")
+    return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -682,8 +729,13 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--merge", default=None, metavar="JSON",
                     help="an earlier report whose rows, setup, note and ablations are kept: the runs given add "
                          "to its rows and replace those of the same task, variant, seed and recipe")
+    fp = sub.add_parser("fingerprint", help="the SHA-256 of a task's demonstrations (seeds and actions), to check "
+                                            "that regenerated demonstrations are those a report's runs learnt from")
+    fp.add_argument("--data", required=True)
+    fp.add_argument("--task", required=True)
     args = parser.parse_args(argv)
-    return {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report}[args.command](args)
+    commands = {"train": cmd_train, "evaluate": cmd_evaluate, "report": cmd_report, "fingerprint": cmd_fingerprint}
+    return commands[args.command](args)
 
 
 if __name__ == "__main__":

@@ -367,6 +367,55 @@ def test_the_report_pools_training_seeds_and_gives_touch_an_interval():
     assert len(touch_effects(pooled)) == 1
 
 
+def test_runs_on_other_demonstrations_are_neither_pooled_nor_compared():
+    """A run records the fingerprint of its demonstrations: runs on other demonstrations (regenerated after an
+    expert changed) pool apart, and touch is compared with vision on the same demonstrations only."""
+    def row(variant: str, seed: int, k: int, demos: str | None) -> dict:
+        out = {"task": "insert_tube", "variant": variant, "seed": seed, "rollouts": 50, "successes": k,
+               "success_rate": k / 50, "unsafe_rate": 0.0, "train_s": 1.0, "eval_s": 1.0}
+        return out if demos is None else {**out, "demonstrations_sha256": demos}
+
+    rows = [row("vision", 0, 10, None), row("vision_encoder", 0, 40, None),
+            row("vision", 0, 20, "aa"), row("vision", 1, 30, "aa"), row("vision_tactile", 0, 45, "aa")]
+    pooled = pooled_rows(rows)
+    assert [(r["variant"], r["demonstrations_sha256"], r["successes"]) for r in pooled] == [
+        ("vision", None, 10), ("vision_encoder", None, 40), ("vision", "aa", 50), ("vision_tactile", "aa", 45)]
+    effects = {(e["variant"], e["demonstrations_sha256"]): e["points"] for e in touch_effects(pooled)}
+    assert effects == pytest.approx({("vision_encoder", None): 60.0, ("vision_tactile", "aa"): 40.0})
+
+
+def test_the_demonstrations_fingerprint_reads_seeds_and_actions_only(corpus, tmp_path, capsys):
+    """The same demonstrations give the same fingerprint in either backend; one changed action or another seed
+    changes it; a path without the task's episodes is one clear error."""
+    from dataclasses import replace
+
+    from train_policy import demonstrations_sha256
+
+    root, episode = corpus
+    sha, n = demonstrations_sha256(root, TASK)
+    assert n == 1 and len(sha) == 64
+    assert train_policy_main(["fingerprint", "--data", str(root), "--task", TASK]) == 0
+    assert capsys.readouterr().out.startswith(sha)
+    as_zarr = tmp_path / "zarr"
+    DatasetWriter.open(as_zarr, storage="zarr").add(episode)
+    assert demonstrations_sha256(as_zarr, TASK) == (sha, 1)
+
+    nudged = dict(episode.arrays)
+    nudged["robot/action"] = episode["robot/action"].copy()
+    nudged["robot/action"][5, 0] += 1e-6  # m
+    changed = tmp_path / "changed"
+    DatasetWriter.open(changed).add(replace(episode, arrays=nudged))
+    assert demonstrations_sha256(changed, TASK)[0] != sha
+    reseeded = tmp_path / "reseeded"
+    DatasetWriter.open(reseeded).add(replace(episode, meta=episode.meta.model_copy(update={"seed": 7})))
+    assert demonstrations_sha256(reseeded, TASK)[0] != sha
+
+    with pytest.raises(SystemExit, match=f"{root}: no episode of task 'lift_can'"):
+        demonstrations_sha256(root, "lift_can")
+    with pytest.raises(SystemExit, match="missing"):
+        demonstrations_sha256(tmp_path / "missing", TASK)
+
+
 def test_the_chart_wraps_many_tasks_onto_panels(tmp_path):
     """Up to five task groups fit one panel; more wrap onto another (the figure grows taller, not wider)."""
     from PIL import Image

@@ -13,6 +13,7 @@ from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
 from univtac_data.generators.scene.touch import TouchReading
 from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.bottle import in_hand_from_touch
 from univtac_data.generators.tasks.collect import ExpertOutcome, TaskEpisodeSpec, run_expert
 from univtac_data.generators.tasks.motions import close_until, move_to
@@ -46,16 +47,12 @@ def _report(name: str, runs: list[ExpertOutcome]) -> None:
 
 def expert_with_true_tilt(name: str, seed: int) -> tuple[dict, list[float]]:
     """The expert's memory and the bottle's true tilt (deg) after each step (index 0: after reset)."""
-    task = make_task(name, FAST)
-    session = TaskSession(task)
-    session.reset(seed)
-    ctx = ExpertContext(session, session.rng)
-    tilts = [_tilt_deg(session)]
-    for step in task.expert(ctx):
-        session.step(step.action, step.primitive)
-        tilts.append(_tilt_deg(session))
-    session.close()
-    return ctx.memory, tilts
+    with expert_rollout(make_task(name, FAST), seed) as run:
+        tilts = [_tilt_deg(run.session)]
+        for step in run.steps():
+            run.take(step)
+            tilts.append(_tilt_deg(run.session))
+        return run.ctx.memory, tilts
 
 
 def test_lift_bottle_expert_succeeds_on_100_seeds(lift_bottle):

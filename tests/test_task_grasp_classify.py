@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig, TaskState
+from univtac_data.generators.tasks.base import TaskConfig, TaskState
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.grasp_classify import FILL_ROUGH_BELOW, GOAL_PADS_XY_M, GraspClassify
 from univtac_data.generators.tasks.session import TaskSession
 from univtac_data.schema.sensors import get_sensor
@@ -36,20 +37,12 @@ def run_expert(task: GraspClassify, seed: int, corrections: bool = True) -> Outc
     """The expert from ``seed`` until its script ends or the step limit. The expert's context has the layout
     without ``rough_spot`` (the ground truth of which cylinder is knurled): it must decide from touch.
     ``corrections=False``: the expert never re-places (to measure what re-placing is worth)."""
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        ctx.corrections_enabled = corrections
+    with expert_rollout(task, seed, corrections=corrections) as run:
+        session, ctx = run.session, run.ctx
         ctx.layout = {key: value for key, value in session.layout.items() if key != "rough_spot"}
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
-            state = session.step(step.action, step.primitive)
+        state = run.run()
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps,
                        dict(ctx.memory["classes"]), task.true_classes(session.layout), list(ctx.memory["corrections"]))
-    finally:
-        session.close()
 
 
 @pytest.fixture(scope="module")
@@ -125,12 +118,10 @@ def test_the_head_camera_cannot_tell_the_cylinders_apart():
 def grasp_spot_0(task: GraspClassify, seed: int) -> tuple[dict[str, Any], dict[str, np.ndarray], np.ndarray]:
     """Run the expert until it has classified the cylinder on spot 0; its touch, one recorded tactile frame
     and that cylinder's world pose."""
-    session = TaskSession(task)
-    try:
-        session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        for step in task.expert(ctx):
-            session.step(step.action, step.primitive)
+    with expert_rollout(task, seed) as run:
+        session, ctx = run.session, run.ctx
+        for step in run.steps():
+            run.take(step)
             if "0" in ctx.memory.get("classes", {}):
                 break
         touch = ctx.touch()
@@ -141,8 +132,6 @@ def grasp_spot_0(task: GraspClassify, seed: int) -> tuple[dict[str, Any], dict[s
         held = min((session.sim.object_pose(name) for name in task.objects()),
                    key=lambda pose: float(np.hypot(pose[0] - x, pose[1] - y)))
         return touch, pixels, held
-    finally:
-        session.close()
 
 
 def test_the_pads_tell_the_cylinders_apart():

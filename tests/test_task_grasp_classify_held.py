@@ -9,7 +9,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.grasp_classify import GOAL_PADS_XY_M, GRASP_HEIGHT_M, RADIUS_M
 from univtac_data.generators.tasks.grasp_classify_held import CYLINDER, GraspClassifyHeld
 from univtac_data.generators.tasks.session import TaskSession
@@ -34,22 +35,15 @@ class Outcome:
 
 def run_expert(task: GraspClassifyHeld, seed: int) -> Outcome:
     """The expert from ``seed``, with a context whose layout lacks ``held_class``: it must decide from touch."""
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
+    with expert_rollout(task, seed) as run:
+        session, ctx = run.session, run.ctx
         ee = session.sim.ee_pose()
         axis_xy = session.sim.object_pose(CYLINDER)[:2]
-        ctx = ExpertContext(session, session.rng)
         ctx.layout = {key: value for key, value in session.layout.items() if key != "held_class"}
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
-            state = session.step(step.action, step.primitive)
+        state = run.run()
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps,
                        ctx.memory["held_class"], session.layout["held_class"],
                        float(np.linalg.norm(axis_xy - ee[:2]) * 1000))
-    finally:
-        session.close()
 
 
 @pytest.fixture(scope="module")

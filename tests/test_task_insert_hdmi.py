@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from univtac_data.generators.scene.geometry import quat_to_mat
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
 from univtac_data.generators.tasks.insert_hdmi import (
     BODY_HALF_M,
@@ -76,25 +77,18 @@ def test_wall_check_sees_a_plug_through_the_wall():
 
 
 def run(task: InsertHDMI, seed: int, corrections: bool = True) -> Outcome:
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        ctx.corrections_enabled = corrections
+    with expert_rollout(task, seed, corrections=corrections) as run:
+        session, state = run.session, run.state
         socket = np.array([*session.layout["socket_xy_m"], SOCKET_TOP_M])
         wall = face = 0.0
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
-            state = session.step(step.action, step.primitive)
+        for step in run.steps():
+            state = run.take(step)
             pose = state.objects["plug"]
             rot = quat_to_mat(pose[3:])
             wall = max(wall, wall_depth_m((SHELL_CORNERS @ rot.T) + pose[:3] - socket))
             face = max(face, -min(0.0, float(((BODY_BOTTOM @ rot.T) + pose[:3] - socket)[:, 2].min())))
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps,
-                       list(ctx.memory["corrections"]), wall * 1000, face * 1000)
-    finally:
-        session.close()
+                       list(run.ctx.memory["corrections"]), wall * 1000, face * 1000)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,8 @@ import pytest
 
 from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_from_axis_angle, quat_mul, quat_to_mat
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
 from univtac_data.generators.tasks.holes import tube_in_solid_mm
 from univtac_data.generators.tasks.insert_hole import BORE, MOUTH_M, InsertHole, hole_pose
@@ -43,23 +44,17 @@ class Outcome:
 def run(task: InsertHole, seed: int) -> Outcome:
     """The expert from ``seed``, checking every step's tube pose against the bore. The expert's context has
     the layout without the lean (which way the bore is inclined): it must find that by touch."""
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
+    with expert_rollout(task, seed) as run:
+        session, ctx, state = run.session, run.ctx, run.state
         ctx.layout = {k: v for k, v in session.layout.items() if k not in ("lean", "hole_angle_deg")}
         pos, quat = hole_pose(session.layout)
         deepest = 0.0
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
-            state = session.step(step.action, step.primitive)
+        for step in run.steps():
+            state = run.take(step)
             deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE,
                                                     MOUTH_M))
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
                        dict(ctx.memory), float(session.layout["lean"]))
-    finally:
-        session.close()
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,8 @@ import pytest
 
 from univtac_data import DatasetWriter
 from univtac_data.generators.scene.geometry import quat_to_mat
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.collect import ExpertOutcome, TaskEpisodeSpec, run_expert
 from univtac_data.generators.tasks.holes import Bore, tube_in_solid_mm
 from univtac_data.generators.tasks import insert_tube
@@ -45,26 +46,19 @@ class Outcome:
 
 def run(task: InsertTube, seed: int, corrections: bool = True) -> Outcome:
     """The expert from ``seed``, checking every step's tube pose against the hole's geometry."""
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        ctx.corrections_enabled = corrections
+    with expert_rollout(task, seed, corrections=corrections) as run:
+        session, state = run.session, run.state
         pos, quat = task.hole_pose(session.layout)
         deepest, tilt = 0.0, None
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
+        for step in run.steps():
             if step.primitive == "insert" and tilt is None:
                 cos_tilt = quat_to_mat(state.objects["tube"][3:])[:, 2] @ quat_to_mat(quat)[:, 2]
                 tilt = math.degrees(math.acos(min(1.0, abs(float(cos_tilt)))))
-            state = session.step(step.action, step.primitive)
+            state = run.take(step)
             deepest = max(deepest, tube_in_solid_mm(state.objects["tube"], TUBE_RADIUS_M, TUBE_HALF_M, pos, quat, BORE))
         depth = -1000.0 * float(task.tube_end_in_hole(session.layout, state.objects["tube"])[2])
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps, deepest,
-                       dict(ctx.memory), 1000 * float(np.hypot(*session.layout["first_offset_m"])), tilt, depth)
-    finally:
-        session.close()
+                       dict(run.ctx.memory), 1000 * float(np.hypot(*session.layout["first_offset_m"])), tilt, depth)
 
 
 def retries_of(o: Outcome | ExpertOutcome) -> list[dict[str, Any]]:

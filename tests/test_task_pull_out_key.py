@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from univtac_data.generators.scene.geometry import quat_to_mat
-from univtac_data.generators.tasks.base import ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.collect import TaskEpisodeSpec, run_expert
 from univtac_data.generators.tasks.pull_out_key import (
     BLADE_HALF_M,
@@ -71,25 +72,18 @@ def key_angle(pose: np.ndarray, lock_yaw: float) -> float:
 
 
 def run(task: PullOutKey, seed: int, corrections: bool = True) -> Outcome:
-    session = TaskSession(task)
-    try:
-        state = session.reset(seed)
-        ctx = ExpertContext(session, session.rng)
-        ctx.corrections_enabled = corrections
+    with expert_rollout(task, seed, corrections=corrections) as run:
+        session, state = run.session, run.state
         lock_yaw = session.layout["lock_yaw_rad"]
         worst, at_pull = 0.0, math.nan
-        for step in task.expert(ctx):
-            if session.steps >= task.max_steps:
-                break
+        for step in run.steps():
             if step.primitive == "pull" and math.isnan(at_pull):
                 at_pull = math.degrees(key_angle(state.objects["key"], lock_yaw))
-            state = session.step(step.action, step.primitive)
+            state = run.take(step)
             pose = state.objects["key"]
             worst = max(worst, plate_depth_m(key_angle(pose, lock_yaw), pose[2] - FACE_Z_M))
         return Outcome(seed, task.success(state), session.safe, session.first_violation(), session.steps,
-                       list(ctx.memory["corrections"]), worst * 1000, at_pull, session.max_indentation_mm)
-    finally:
-        session.close()
+                       list(run.ctx.memory["corrections"]), worst * 1000, at_pull, session.max_indentation_mm)
 
 
 @pytest.fixture(scope="module")

@@ -240,6 +240,34 @@ def test_generation_evaluation_and_the_environment_share_one_time_limit(monkeypa
         env.close()
 
 
+def test_an_expert_rollout_takes_each_step_once_and_closes_its_session():
+    """Every caller runs the expert through ``expert_rollout``: a step asked for must be taken before the next
+    (the expert decides from the state it left), and the session is closed when the block ends."""
+    from univtac_data.generators.tasks.expert_rollout import expert_rollout
+
+    task = make_task("lift_can", FAST)
+    with expert_rollout(task, 3) as run:
+        steps = run.steps()
+        next(steps)
+        with pytest.raises(RuntimeError, match="lift_can: expert step 0 was not taken"):
+            next(steps)
+    assert run.session.sim is None
+
+    def first_actions(n: int) -> list[np.ndarray]:
+        with expert_rollout(task, 3) as run:
+            actions = []
+            for step in run.steps():
+                before = run.state
+                assert run.take(step) is run.state is not before
+                actions.append(step.action.copy())
+                if len(actions) == n:
+                    break
+            assert run.session.steps == n
+            return actions
+
+    assert all(np.array_equal(a, b) for a, b in zip(first_actions(3), first_actions(3)))
+
+
 def test_delta_actions_move_the_target():
     import univtac_data.envs  # noqa: F401
 

@@ -22,7 +22,8 @@ from univtac_data.generators.allocator import keep_freed_memory
 from univtac_data.generators.runner import check_executor, run_specs
 from univtac_data.generators.scene.recording import build_episode
 from univtac_data.generators.scene.threads import one_blas_thread
-from univtac_data.generators.tasks.base import EVAL_SEED_BASE, ExpertContext, TaskConfig
+from univtac_data.generators.tasks.base import EVAL_SEED_BASE, TaskConfig
+from univtac_data.generators.tasks.expert_rollout import expert_rollout
 from univtac_data.generators.tasks.registry import make_task
 from univtac_data.progress import Progress
 from univtac_data.generators.tasks.session import TaskSession
@@ -70,25 +71,16 @@ def run_expert(spec: TaskEpisodeSpec, *, record: bool = True, corrections: bool 
     same as ``evaluate``'s: ``Task.step_limit``); record it if asked.
     ``corrections=False`` runs the expert with its corrections switched off (to measure what they are worth)."""
     task = make_task(spec.task, spec.config)
-    session = TaskSession(task, record=record)
-    try:
-        state = session.reset(spec.seed)
-        ctx = ExpertContext(session, session.rng)
-        ctx.corrections_enabled = corrections
-        for step in task.expert(ctx):
-            if session.steps >= task.step_limit:
-                break
-            state = session.step(step.action, step.primitive)
-        success = task.success(state)
-        memory = _jsonable(ctx.memory)
-        outcome = ExpertOutcome(spec.seed, bool(success), session.safe, session.steps, session.first_violation(), memory,
+    with expert_rollout(task, spec.seed, record=record, corrections=corrections) as run:
+        state = run.run()
+        session = run.session
+        outcome = ExpertOutcome(spec.seed, bool(task.success(state)), session.safe, session.steps,
+                                session.first_violation(), _jsonable(run.ctx.memory),
                                 max_in_hand_slip_mm=float(session.max_in_hand_slip_mm))
         if record:
             with one_blas_thread():
                 outcome.episode = _episode(spec, session, outcome)
         return outcome
-    finally:
-        session.close()
 
 
 def _jsonable(value: Any) -> Any:

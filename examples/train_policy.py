@@ -130,9 +130,10 @@ def load_demos(path: str | Path, task: str, config: PolicyConfig, stride: int = 
     return DemoCache(tensors, len(episodes), rate, subsample, stride)
 
 
-def demonstrations_sha256(path: str | Path, task: str) -> tuple[str, int]:
+def demonstrations_sha256(path: str | Path, task: str, max_episodes: int | None = None) -> tuple[str, int]:
     """A fingerprint of ``task``'s demonstrations at ``path``: SHA-256 over each episode's seed and recorded
-    actions (as little-endian float64), in seed order, and the number of episodes. It does not depend on the
+    actions (as little-endian float64), in seed order, and the number of episodes (the first
+    ``max_episodes`` only, as ``train --max-episodes`` reads them). It does not depend on the
     storage backend, the compression or the camera images, so demonstrations regenerated elsewhere with the
     same code and seeds give the same fingerprint, and a policy run says which demonstrations it learnt from."""
     import hashlib
@@ -142,6 +143,7 @@ def demonstrations_sha256(path: str | Path, task: str) -> tuple[str, int]:
     try:
         dataset = Dataset.open(path)
         rows = sorted((row for row in dataset.index.values() if row.name == task), key=lambda row: row.seed)
+        rows = rows[:max_episodes]
         if not rows:
             raise SystemExit(f"{path}: no episode of task {task!r}")
         digest = hashlib.sha256()
@@ -333,7 +335,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if not config.uses_tactile:
         for pad in PADS:
             cache.tensors.pop(f"tactile_{pad}")
-    demos_sha256, _ = demonstrations_sha256(args.data, args.task)
+    demos_sha256, _ = demonstrations_sha256(args.data, args.task, args.max_episodes)
     t_read = time.perf_counter() - t0
     log(f"  {len(cache)} samples from {cache.episodes} episodes at {cache.demo_rate_hz:g} Hz "
         f"(one action in {cache.subsample}: {config.rate_hz:g} Hz) in {t_read:.0f} s")

@@ -409,6 +409,13 @@ def test_the_demonstrations_fingerprint_reads_seeds_and_actions_only(corpus, tmp
     reseeded = tmp_path / "reseeded"
     DatasetWriter.open(reseeded).add(replace(episode, meta=episode.meta.model_copy(update={"seed": 7})))
     assert demonstrations_sha256(reseeded, TASK)[0] != sha
+    both = tmp_path / "both"  # seeds 7 and 0: seed order, and --max-episodes reads the first
+    with DatasetWriter.open(both) as writer:
+        writer.add(replace(episode, meta=episode.meta.model_copy(
+            update={"seed": 7, "episode_id": episode.meta.episode_id.replace("000000", "000007")})))
+        writer.add(episode)
+    assert demonstrations_sha256(both, TASK)[1] == 2 and demonstrations_sha256(both, TASK)[0] != sha
+    assert demonstrations_sha256(both, TASK, max_episodes=1) == (sha, 1)
 
     with pytest.raises(SystemExit, match=f"{root}: no episode of task 'lift_can'"):
         demonstrations_sha256(root, "lift_can")

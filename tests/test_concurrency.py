@@ -3,11 +3,13 @@ that die with their parent, resume that checks every episode, and `info` that lo
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -68,6 +70,24 @@ def test_a_second_writer_is_refused_in_one_line_naming_the_holder(tmp_path):
     assert sorted(p.name for p in (root / "meta").iterdir()) == before
     assert Dataset.open(root).episode_ids == ["ep0"]
     assert not (root / LOCK_NAME).exists()  # released: a dataset carries no lock file between writers
+
+
+def test_a_writer_refused_before_the_holder_named_itself_still_names_it(tmp_path):
+    # the holder takes the flock first and writes its pid just after: a writer refused in between must wait for
+    # the name rather than say "nobody" (a race seen in CI with two writers started at once)
+    root = tmp_path / "ds"
+    root.mkdir()
+    fd = os.open(root / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    holder = LockHolder(pid=4242, host=socket.gethostname(), started="now", command="univtac-data generate")
+    late = threading.Timer(0.3, lambda: os.pwrite(fd, holder.to_bytes(), 0))
+    late.start()
+    try:
+        with pytest.raises(DatasetLockedError, match="another writer is using this dataset: pid 4242 on "):
+            DatasetLock(root).acquire()
+    finally:
+        late.join()
+        os.close(fd)
 
 
 def test_a_stale_lock_is_taken_over_and_named(tmp_path):

@@ -196,9 +196,10 @@ class DatasetLock:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as error:
-                holder = LockHolder.parse(_read_fd(fd))
+                busy = error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+                holder = _wait_for_holder(fd) if busy else None
                 os.close(fd)
-                if error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                if busy:
                     raise DatasetLockedError(_locked_message(self.loc.url, holder, None)) from None
                 raise DatasetError(f"{path}: cannot lock ({error.strerror or error})") from None
             # a holder removes the file when it releases: the file locked must still be the one at the path
@@ -276,6 +277,20 @@ def _release_at_exit(key: str) -> None:
 
 def _read_fd(fd: int) -> bytes:
     return os.pread(fd, 4096, 0)
+
+
+HOLDER_WAIT_S = 2.0  # a writer names itself right after taking the flock; on a loaded machine that can lag
+
+
+def _wait_for_holder(fd: int, wait_s: float = HOLDER_WAIT_S) -> LockHolder | None:
+    """The holder named in a flock'd lock file, re-read for up to ``wait_s`` seconds: a writer refused in the
+    instant between another's flock and its pid being written would otherwise name nobody."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        holder = LockHolder.parse(_read_fd(fd))
+        if holder is not None or time.monotonic() >= deadline:
+            return holder
+        time.sleep(0.02)
 
 
 def _locked_message(url: str, holder: LockHolder | None, lock_path: str | None) -> str:

@@ -137,7 +137,7 @@ def _overlap_runs(gap: np.ndarray, s0: int, s1: int, t0: int, t1: int) -> np.nda
                 j += 1
             out[0, n], out[1, n], out[2, n] = i, start, j
             n += 1
-    return out[:, :n]
+    return out[:, :n].copy()  # a C array whatever n: a slice that happens to be contiguous would recompile
 
 
 @numba.njit(cache=True, nogil=True)
@@ -274,7 +274,7 @@ def _contact_pass(gap: np.ndarray, runs: np.ndarray, piece: np.ndarray, deepest:
                 rim_pixels[0, n_rim], rim_pixels[1, n_rim], rim_pixels[2, n_rim] = i, j, k
                 n_rim += 1
         count[k], sum_h[k], sum_root[k], rim_sum[k], rim_count[k] = n_cells, s_h, s_root, s_rim, n_rim_sides
-    return count, sum_h, sum_root, rim_sum, rim_count, rim_pixels[:, :n_rim]
+    return count, sum_h, sum_root, rim_sum, rim_count, rim_pixels[:, :n_rim].copy()  # C: see _overlap_runs
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

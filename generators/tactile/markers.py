@@ -20,7 +20,8 @@ __all__ = ["draw_markers", "sample_bilinear"]
 def sample_bilinear(field: np.ndarray, x_axis: np.ndarray, y_axis: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Sample (..., ny, nx) fields on a regular grid (centres ``x_axis`` (nx,), ``y_axis`` (ny,)) at
     ``points`` (N, 2) (x, y) -> (..., N) float64. Points outside the grid take the nearest edge value."""
-    stack = np.ascontiguousarray(field).reshape(-1, *field.shape[-2:])
+    # float64 whatever the field (the kernel reads float64 anyway): one compiled signature, not one per dtype
+    stack = np.ascontiguousarray(field, dtype=np.float64).reshape(-1, *field.shape[-2:])
     points = np.ascontiguousarray(points, dtype=np.float64)
     out = _sample_bilinear(stack, float(x_axis[0]), float(x_axis[1] - x_axis[0]), x_axis.size,
                            float(y_axis[0]), float(y_axis[1] - y_axis[0]), y_axis.size, points)

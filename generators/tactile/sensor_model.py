@@ -122,7 +122,7 @@ def downsample_mean(field: np.ndarray, step: int, pad_mode: str = "edge") -> np.
     if pad_mode not in ("edge", "constant"):
         raise ValueError(f"pad_mode must be 'edge' or 'constant' (got {pad_mode!r})")
     out = np.empty((-(-field.shape[0] // step), -(-field.shape[1] // step)))
-    _block_means(np.asarray(field, dtype=np.float64), step, pad_mode == "edge", False, out)
+    _block_means(np.ascontiguousarray(field, dtype=np.float64), step, pad_mode == "edge", False, out)
     return out
 
 
@@ -141,7 +141,7 @@ def downsample_overlap_or_mean(gap_mm: np.ndarray, step: int) -> np.ndarray:
     if step == 1:
         return gap_mm
     out = np.empty((-(-gap_mm.shape[0] // step), -(-gap_mm.shape[1] // step)))
-    _block_means(np.asarray(gap_mm, dtype=np.float64), step, True, True, out)
+    _block_means(np.ascontiguousarray(gap_mm, dtype=np.float64), step, True, True, out)
     return out
 
 

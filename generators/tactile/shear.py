@@ -570,6 +570,7 @@ def _stick_slip_cells(matrix: np.ndarray, spectra: np.ndarray, pad: tuple[int, i
 
 # the operator arguments of _stick_slip_cells that the other operator leaves empty
 _NO_MATRIX = np.zeros((0, 0), np.float32)
+_NO_MATRIX.flags.writeable = False  # as the dense matrices: one compiled signature for both
 _NO_SPECTRA = np.zeros((3, 1, 1), np.complex64)
 
 
@@ -721,7 +722,8 @@ def solve_shear(
     mu = material.friction
 
     # everything below lives on the m contact cells, as (m,) or (2, m) arrays
-    rows, cols = np.nonzero(contact_mask)
+    # contiguous: np.nonzero gives strided views except for a single cell, and each layout is a compile
+    rows, cols = (np.ascontiguousarray(index) for index in np.nonzero(contact_mask))
     p = pressure_mpa[rows, cols]
     gx, gy = x_mm[cols], y_mm[rows]
     total_p = float(p.sum())

@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pickle
 import platform
 import subprocess
 import sys
@@ -180,18 +181,39 @@ def history_rows(episode: torch.Tensor, history: int, step_rows: int) -> torch.T
     return torch.maximum(rows[:, None] - back[None], first[:, None])
 
 
+def episode_digests(path: str | Path, task: str) -> list[list[str]]:
+    """[episode_id, sha256] of ``task``'s episodes at ``path``, from the dataset's index (no episode is read):
+    the episode digest covers every byte of the episode's files, so demonstrations regenerated into the same
+    directory give other digests."""
+    from univtac_data import CorruptFileError, Dataset, DatasetError
+
+    try:
+        index = Dataset.open(path).index
+    except (DatasetError, CorruptFileError) as err:  # each names the file and the problem
+        raise SystemExit(str(err)) from None
+    return sorted([row.episode_id, row.sha256] for row in index.values() if row.name == task)
+
+
 def cached_demos(cache_path: str | None, data: str, task: str, config: PolicyConfig, stride: int,
                  max_episodes: int | None, log: Any = print) -> DemoCache:
     """``load_demos``, saved to ``cache_path`` the first time (the three variants read the same samples;
-    the file records what it was made from and is rebuilt when that differs)."""
-    key = {"data": str(Path(data).resolve()), "task": task, "rate_hz": config.rate_hz, "chunk": config.chunk,
+    the file records what it was made from, the episodes' digests included, and is rebuilt when that
+    differs)."""
+    key = {"data": str(Path(data).resolve()), "episodes": episode_digests(data, task), "task": task,
+           "rate_hz": config.rate_hz, "chunk": config.chunk,
            "cameras": list(config.cameras), "camera_hw": list(config.camera_hw),
            "tactile_hw": list(config.tactile_hw), "stride": stride, "max_episodes": max_episodes}
     if cache_path and Path(cache_path).exists():
-        saved = torch.load(cache_path, weights_only=False)
+        try:
+            saved = torch.load(cache_path, weights_only=False)
+        except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as err:  # a cache is only ever a copy
+            log(f"  the cache {cache_path} is unreadable ({err}): read again")
+            saved = {"key": None}
         if saved["key"] == key and "touch" in saved["tensors"]:  # caches from before touch signals: rebuilt
             log(f"  samples from the cache {cache_path}")
             return DemoCache(saved["tensors"], saved["episodes"], saved["demo_rate_hz"], saved["subsample"], stride)
+        if saved["key"] is not None:
+            log(f"  the cache {cache_path} was made from other demonstrations or settings: read again")
     cache = load_demos(data, task, config, stride=stride, max_episodes=max_episodes, log=log)
     if cache_path:
         tmp = str(cache_path) + ".part"

@@ -423,6 +423,40 @@ def test_the_demonstrations_fingerprint_reads_seeds_and_actions_only(corpus, tmp
         demonstrations_sha256(tmp_path / "missing", TASK)
 
 
+def test_a_cache_of_other_demonstrations_in_the_same_directory_is_read_again(corpus, tmp_path):
+    """Demonstrations regenerated into the directory a cache was made from are read again, not served from
+    the cache; an unreadable cache is read again too."""
+    import shutil
+    from dataclasses import replace
+
+    from train_policy import cached_demos
+
+    _, episode = corpus
+    data, cache_file = tmp_path / "data", tmp_path / "cache.pt"
+    DatasetWriter.open(data).add(episode)
+    messages: list[str] = []
+    first = cached_demos(str(cache_file), str(data), TASK, tiny_config(), 3, None, log=messages.append)
+    again = cached_demos(str(cache_file), str(data), TASK, tiny_config(), 3, None, log=messages.append)
+    assert any("samples from the cache" in m for m in messages)
+    assert torch.equal(first.tensors["action"], again.tensors["action"])
+
+    shutil.rmtree(data)  # the same seed regenerated with one action 1 mm further
+    nudged = dict(episode.arrays)
+    nudged["robot/action"] = episode["robot/action"].copy()
+    nudged["robot/action"][:, 0] += 1e-3  # m
+    DatasetWriter.open(data).add(replace(episode, arrays=nudged))
+    messages.clear()
+    regenerated = cached_demos(str(cache_file), str(data), TASK, tiny_config(), 3, None, log=messages.append)
+    assert any("made from other demonstrations" in m for m in messages)
+    assert not torch.equal(regenerated.tensors["action"], first.tensors["action"])
+
+    cache_file.write_bytes(cache_file.read_bytes()[:100])  # cut short
+    messages.clear()
+    reread = cached_demos(str(cache_file), str(data), TASK, tiny_config(), 3, None, log=messages.append)
+    assert any("unreadable" in m for m in messages)
+    assert torch.equal(reread.tensors["action"], regenerated.tensors["action"])
+
+
 def test_the_chart_wraps_many_tasks_onto_panels(tmp_path):
     """Up to five task groups fit one panel; more wrap onto another (the figure grows taller, not wider)."""
     from PIL import Image

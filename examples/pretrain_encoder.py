@@ -32,6 +32,7 @@ import argparse
 import json
 import math
 import os
+import pickle
 import platform
 import subprocess
 import sys
@@ -173,16 +174,21 @@ def load_corpus(path: Path, sensor: str, size: tuple[int, int], contact_mm: floa
     """Read the frames in contact of ``sensor``'s episodes (cached in ``cache`` when given): the marked image
     at ``size``, the reconstruction targets (I_pure, D) at ``target_size`` (default: ``size``)."""
     target = tuple(target_size or size)
-    key = [str(path), sensor, list(size), contact_mm, list(target)]
-    if cache is not None and cache.exists():
-        data = torch.load(cache, weights_only=False)
-        if data["key"] == key:
-            return Corpus(**data["corpus"])
-    _large_buffers_to_mmap()
     ds = Dataset.open(path)
     ids = sorted(e for e, row in ds.index.items() if row.sensor == sensor)
     if not ids:
         raise SystemExit(f"{path}: no episode of sensor {sensor}")
+    # the episodes' digests (index only): a corpus regenerated into the same directory is read again
+    key = [str(path), sensor, list(size), contact_mm, list(target), [[e, ds.index[e].sha256] for e in ids]]
+    if cache is not None and cache.exists():
+        try:
+            data = torch.load(cache, weights_only=False)
+        except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as err:  # a cache is only ever a copy
+            print(f"the cache {cache} is unreadable ({err}): reading the corpus again", flush=True)
+            data = {"key": None}
+        if data["key"] == key:
+            return Corpus(**data["corpus"])
+    _large_buffers_to_mmap()
     shapes = sorted({ds.index[e].name for e in ids})
     parts: dict[str, list[torch.Tensor]] = {}
     for e, eid in enumerate(ids):
@@ -194,7 +200,9 @@ def load_corpus(path: Path, sensor: str, size: tuple[int, int], contact_mm: floa
     corpus = Corpus(**{k: torch.cat(v) for k, v in parts.items()}, episode_ids=ids, shapes=shapes)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        torch.save({"key": key, "corpus": corpus.as_dict()}, cache)
+        part = cache.with_name(cache.name + ".part")  # a killed run leaves no half-written cache
+        torch.save({"key": key, "corpus": corpus.as_dict()}, part)
+        os.replace(part, cache)
     return corpus
 
 

@@ -279,3 +279,30 @@ def test_recipe_names_a_missing_corpus_in_one_line(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as stop:
         recipe.main(["--data", str(tmp_path / "missing"), "--out-dir", str(tmp_path / "out"), "--threads", "1"])
     assert str(stop.value) == f"pretrain_encoder: {tmp_path / 'missing'}: no such file or directory"
+
+
+def test_a_corpus_regenerated_into_the_cached_directory_is_read_again(  # type: ignore[no-untyped-def]
+        recipe: ModuleType, corpus_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The corpus cache records the episodes' digests: other episodes at the same path are read, not the
+    cached frames; a cut-short cache is read again too, and the cache is replaced whole."""
+    import shutil
+
+    from univtac_data import DatasetWriter
+    from univtac_data.generators.indenters.corpus import IndenterEpisodeSpec, run_indenter_episode
+
+    data, cache = tmp_path / "corpus", tmp_path / "cache.pt"
+    shutil.copytree(corpus_root, data)
+    first = recipe.load_corpus(data, "gelsight_mini", (24, 32), 0.01, cache=cache)
+    assert len(first.episode_ids) == 3 * len(SHAPES) and cache.exists()
+    assert not list(tmp_path.glob("*.part"))
+
+    shutil.rmtree(data)  # regenerated: one episode of another seed
+    with DatasetWriter.open(data, storage="hdf5", sensors=["gelsight_mini"]) as writer:
+        writer.add(run_indenter_episode(IndenterEpisodeSpec("gelsight_mini", "sphere", 7, frames=14)))
+    again = recipe.load_corpus(data, "gelsight_mini", (24, 32), 0.01, cache=cache)
+    assert again.episode_ids == ["gelsight_mini-sphere-0007"] and again.shapes == ["sphere"]
+
+    cache.write_bytes(cache.read_bytes()[:100])
+    reread = recipe.load_corpus(data, "gelsight_mini", (24, 32), 0.01, cache=cache)
+    assert "is unreadable" in capsys.readouterr().out
+    assert reread.episode_ids == again.episode_ids and torch.equal(reread.marked, again.marked)

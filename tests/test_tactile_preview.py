@@ -46,6 +46,27 @@ def test_preview_dataset(tmp_path: Path, storage: str) -> None:
     assert is_png(out)
 
 
+def test_a_contact_sheet_interrupted_mid_write_leaves_no_file(tmp_path: Path, monkeypatch) -> None:
+    """The PNG goes to a temporary name and is renamed when whole: a write cut short leaves neither a half PNG
+    nor the temporary file; a folder that does not exist yet is made, as before."""
+    import matplotlib.figure
+
+    root = make_dataset(tmp_path / "ds", n_episodes=1)
+    out = tmp_path / "new" / "sheet.png"
+
+    def cut_short(self, path, **kwargs):
+        Path(path).write_bytes(b"\x89PNG\r\n\x1a\n half")
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(matplotlib.figure.Figure, "savefig", cut_short)
+        with pytest.raises(KeyboardInterrupt):
+            preview.run(parse([str(root), "--out", str(out), "--frames", "2"]))
+    assert list((tmp_path / "new").iterdir()) == []
+    assert preview.run(parse([str(root), "--out", str(out), "--frames", "2"])) == 0
+    assert is_png(out) and sorted(p.name for p in out.parent.iterdir()) == ["sheet.png"]
+
+
 def test_preview_errors_name_the_input(tmp_path: Path) -> None:
     root = make_dataset(tmp_path / "ds", n_episodes=1)
     out = str(tmp_path / "x.png")

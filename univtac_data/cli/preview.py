@@ -271,12 +271,15 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError("preview: give a dataset PATH, or --sensor NAME --demo INDENTER")
     elif args.gallery:
         tiles, title, failed = _gallery_tiles(args.path, args.pad, args.max_episodes)
-        print(f"wrote {image_gallery(tiles, args.out, title=title)}")
+        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+        _write_atomic(args.out, ".png", lambda tmp: image_gallery(tiles, tmp, title=title))
+        print(f"wrote {args.out}")
         for line in failed:
             print(f"skipped: {line}", file=sys.stderr)
         return 1 if failed else 0
     else:
         frames, title = _dataset_frames(args.path, args.episode, args.frames, args.pad)
-    out = contact_sheet(frames, args.out, title=title)
-    print(f"wrote {out}")
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    _write_atomic(args.out, ".png", lambda tmp: contact_sheet(frames, tmp, title=title))
+    print(f"wrote {args.out}")
     return 0

@@ -96,3 +96,27 @@ def test_video_of_the_first_rollouts(tmp_path):
     assert files == [f"lift_can-{EVAL_SEED_BASE}.mp4"]
     frames = read_mp4(str(tmp_path / files[0]))
     assert frames.shape[0] == report.rollouts[0].steps + 1 and frames.shape[1] % 2 == 0
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_any_rollout(tmp_path):
+    """--json naming a folder and --video naming a file were found only after the rollouts (a traceback) or
+    made every rollout fail as if the policy had; both are now one line before anything runs, and --json
+    into folders not made yet works."""
+    (tmp_path / "a_file").write_text("x")
+    (tmp_path / "a_folder").mkdir()
+    for args, message in [
+        (["--json", str(tmp_path / "a_folder")], "is a directory; give a file name for --json"),
+        (["--json", str(tmp_path / "a_file" / "r.json")], "is not a directory"),
+        (["--video", str(tmp_path / "a_file")], "is a file; give a folder for --video"),
+    ]:
+        result = cli("evaluate", "lift_can", "--policy", "expert", "--episodes", "1", "--no-cameras", *args)
+        assert result.returncode == 2, (args, result.stderr)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0] and not result.stdout, (args, result.stderr)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "a_folder"]
+    assert not list((tmp_path / "a_folder").iterdir())
+
+    nested = tmp_path / "new" / "sub" / "r.json"
+    result = cli("evaluate", "lift_can", "--policy", "zero", "--episodes", "1", "--no-cameras", "--json", str(nested))
+    assert result.returncode == 0, result.stderr
+    assert len(json.loads(nested.read_text())["per_rollout"]) == 1

@@ -53,6 +53,10 @@ def test_unwritable_outputs_are_one_line_and_leave_nothing(tmp_path):
     assert "cannot create the dataset folder" in one_line_error(cli("convert", str(src), out, "--to", "zarr"))
     assert "a-file is not a directory" in one_line_error(cli("preview", str(src), "--out", str(blocker / "x.png")))
     assert "is a directory" in one_line_error(cli("preview", str(src), "--out", str(tmp_path)))
+    # the output is itself a file: named as such, not as a lock that cannot be made inside it
+    assert one_line_error(cli("generate", "indenters", "--out", str(blocker), *TINY)).endswith(
+        f"{blocker}: is a file, not a dataset folder")
+    assert "is a file, not a dataset folder" in one_line_error(cli("convert", str(src), str(blocker), "--to", "zarr"))
     assert blocker.read_text() == "not a folder"
 
 

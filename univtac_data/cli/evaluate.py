@@ -8,7 +8,7 @@ import os
 import sys
 from typing import Any
 
-from univtac_data.cli.args import camera_size, positive_int
+from univtac_data.cli.args import camera_size, check_output_dir, check_output_file, positive_int
 from univtac_data.schema.sensors import SENSORS
 from univtac_data.storage.errors import DatasetError
 
@@ -66,7 +66,10 @@ def run(args: argparse.Namespace) -> int:
         TaskConfig(rate_hz=args.rate_hz).ticks_per_step
     except ValueError as error:
         raise DatasetError(f"--rate-hz: {error}") from None
+    if args.json is not None:
+        check_output_file(args.json, "--json")  # before the rollouts, not after them
     if args.video is not None:
+        check_output_dir(args.video, "--video")
         from univtac_data.export.video import require_av
 
         require_av()
@@ -84,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         if r.reason.startswith("error"):
             print(f"rollout seed {r.seed}: {r.reason}", file=sys.stderr)
     if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         tmp = args.json + ".part"
         with open(tmp, "w") as handle:
             json.dump(report.as_json(), handle, indent=1)

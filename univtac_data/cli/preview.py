@@ -18,22 +18,8 @@ import numpy as np
 from univtac_data.schema.sensors import SENSORS, get_sensor
 from univtac_data.storage import Dataset
 from univtac_data.storage.errors import DatasetError
-from univtac_data.cli.args import positive_int
+from univtac_data.cli.args import check_output_file, positive_int
 
-
-
-def check_output_file(path: str) -> None:
-    """Fail before any work when ``path`` cannot be written: a directory, or no write access where it goes."""
-    target = os.path.abspath(path)
-    if os.path.isdir(target):
-        raise DatasetError(f"{path}: is a directory; give a file name for --out")
-    parent = os.path.dirname(target)
-    while not os.path.exists(parent):
-        parent = os.path.dirname(parent)
-    if not os.path.isdir(parent):
-        raise DatasetError(f"{path}: cannot write here ({parent} is not a directory)")
-    if not os.access(parent if not os.path.exists(target) else target, os.W_OK):
-        raise DatasetError(f"{path}: cannot write here (permission denied)")
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -261,7 +247,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out is None:
         raise DatasetError("preview: give --out FILE.png, --video OUT.mp4 or --rerun FILE.rrd")
 
-    check_output_file(args.out)
+    check_output_file(args.out, "--out")
     if args.demo is not None or args.sensor is not None:
         if args.path is not None:
             raise DatasetError(f"{args.path}: give either a dataset PATH or --sensor/--demo, not both")

@@ -148,6 +148,8 @@ class DatasetLock:
                 raise DatasetError(f"{self.loc.url}: cannot create the dataset folder "
                                    f"({error.strerror or error})") from None
             created_root = True
+        elif self.loc.is_local and not os.path.isdir(self.loc.join("")):
+            raise DatasetError(f"{self.loc.url}: is a file, not a dataset folder")
         fd = self._acquire_flock(created_root) if self.loc.is_local else self._acquire_create()
         _HELD[self.key] = _Hold(fd=fd, loc=self.loc)
         self._held = True

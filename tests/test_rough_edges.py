@@ -105,6 +105,22 @@ def test_workers_and_counts_must_be_positive(tmp_path, value):
     assert not (tmp_path / "g.png").exists()
 
 
+@pytest.mark.parametrize("value", ["0", "nan", "inf", "-50"])
+def test_a_rate_that_is_not_a_positive_number_of_hz_is_one_line(tmp_path, value):
+    """``--rate nan`` made the indenter corpus loop forever and ``--rate inf`` a traceback; the tasks' ``--rate 0``
+    divided by zero."""
+    out = tmp_path / "ds"
+    assert "--rate must be a positive number of Hz" in \
+        one_line_error(cli("generate", "indenters", "--out", str(out), "--rate", value, *TINY, timeout=60))
+    # the tasks say "not a whole number of 2 ms control ticks" for inf
+    expected = "not a whole number of 2 ms control ticks" if value == "inf" else "must be a positive number of Hz"
+    line = one_line_error(cli("generate", "task", "lift_can", "--episodes", "1", "--out", str(out), "--rate", value))
+    assert line.startswith("univtac-data: error: --rate: rate") and expected in line
+    line = one_line_error(cli("evaluate", "lift_can", "--policy", "zero", "--rate-hz", value))
+    assert line.startswith("univtac-data: error: --rate-hz: rate") and expected in line
+    assert not out.exists()
+
+
 def test_convert_onto_its_own_source_is_refused(tmp_path):
     src = make_dataset(tmp_path / "src", "hdf5", 2, n_frames=3)
     before = sorted(p.name for p in src.rglob("*"))

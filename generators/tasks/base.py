@@ -55,6 +55,8 @@ class TaskConfig:
     @property
     def ticks_per_step(self) -> int:
         """Control ticks per policy step (a whole number, so that every step lasts the same)."""
+        if not self.rate_hz > 0:  # NaN too
+            raise ValueError(f"rate must be a positive number of Hz (got {self.rate_hz})")
         ticks = (1.0 / self.rate_hz) / (self.timestep_s * self.control_period_steps)
         if ticks < 1 - 1e-9 or abs(ticks - round(ticks)) > 1e-6:
             tick_ms = self.timestep_s * self.control_period_steps * 1000

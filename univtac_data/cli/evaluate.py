@@ -61,8 +61,6 @@ def run(args: argparse.Namespace) -> int:
     from univtac_data.generators.tasks.base import TaskConfig
 
     try:
-        if not args.rate_hz > 0:
-            raise ValueError(f"must be > 0 (got {args.rate_hz})")
         TaskConfig(rate_hz=args.rate_hz).ticks_per_step
     except ValueError as error:
         raise DatasetError(f"--rate-hz: {error}") from None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
 
@@ -160,8 +161,8 @@ def run(args: argparse.Namespace) -> int:
                                                                               args.frames_per_episode)):
         if value < 1:
             raise DatasetError(f"{name} must be at least 1 (got {value})")
-    if args.rate <= 0:
-        raise DatasetError(f"--rate must be positive (got {args.rate})")
+    if not (math.isfinite(args.rate) and args.rate > 0):  # NaN compares false both ways and never stops
+        raise DatasetError(f"--rate must be a positive number of Hz (got {args.rate})")
     if args.gel != "half_space" and args.contact != "elastic":
         raise DatasetError(f"--gel {args.gel} applies to --contact elastic only (got --contact {args.contact})")
     sensors = list(SENSORS) if args.sensor == "all" else [args.sensor]

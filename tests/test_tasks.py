@@ -317,6 +317,22 @@ def test_generate_task_refuses_bad_input(tmp_path):
     assert size.returncode == 2 and "--camera-size" in size.stderr and not out.exists()
 
 
+def test_a_run_that_runs_out_of_seeds_says_why(tmp_path):
+    """The demonstration seeds end below the evaluation seeds, and --max-seeds caps a run: a run stopped short by
+    either says so (exit 1), instead of only "1 of 3 successful episodes"."""
+    top = cli("generate", "task", "lift_can", "--episodes", "3", "--seed", "999999", "--no-cameras",
+              "--out", str(tmp_path / "top"))
+    assert top.returncode == 1 and "1 of 3 successful episodes" in top.stdout, top.stdout + top.stderr
+    assert "lift_can: no demonstration seed left: seeds 999999 to 999999 are all tried (evaluation seeds start " \
+           "at 1000000)" in top.stderr
+    capped = cli("generate", "task", "lift_can", "--episodes", "2", "--max-seeds", "1", "--no-cameras",
+                 "--out", str(tmp_path / "capped"))
+    assert capped.returncode == 1 and "lift_can: gave up after seeds 0 to 0 (--max-seeds 1;" in capped.stderr
+    zero = cli("generate", "task", "lift_can", "--max-seeds", "0", "--out", str(tmp_path / "zero"))
+    assert zero.returncode == 2 and "--max-seeds: must be a positive integer" in zero.stderr
+    assert not (tmp_path / "zero").exists()
+
+
 @pytest.mark.slow
 def test_generate_task_on_ray_into_zarr_gives_the_same_episode(tmp_path):
     pytest.importorskip("ray")

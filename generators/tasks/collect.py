@@ -152,6 +152,7 @@ class CollectSummary:
     errors: list[str] = field(default_factory=list)
     frames: int = 0
     elapsed_s: float = 0.0
+    stopped: str = ""  # why the run ended short of ``wanted``: the seed range or --max-seeds ran out
 
     @property
     def success_rate(self) -> float:
@@ -242,4 +243,11 @@ def _collect_into(writer: DatasetWriter, url: str, task: str, episodes: int, con
                 discard_staged(loc, leftover.written)
         bar.close()
         summary.elapsed_s = time.perf_counter() - t0
+    if done < episodes and next_seed >= last_seed:
+        if last_seed == EVAL_SEED_BASE:
+            summary.stopped = (f"no demonstration seed left: seeds {start_seed} to {EVAL_SEED_BASE - 1} are all "
+                               f"tried (evaluation seeds start at {EVAL_SEED_BASE}); use a lower --seed or a new --out")
+        else:
+            summary.stopped = (f"gave up after seeds {start_seed} to {last_seed - 1} (--max-seeds {limit}; "
+                               f"the default is 20 a wanted episode)")
     return summary

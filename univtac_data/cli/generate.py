@@ -83,7 +83,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     task.add_argument("--no-cameras", action="store_true", help="record no camera images (much faster)")
     task.add_argument("--keep-failures", action="store_true",
                       help="keep failed or unsafe episodes too, flagged (success false); they do not count")
-    task.add_argument("--max-seeds", type=int, default=None, help="give up after this many seeds (default 20 x episodes)")
+    task.add_argument("--max-seeds", type=positive_int, default=None, help="give up after this many seeds (default 20 x episodes)")
     task.add_argument("--format", choices=("hdf5", "zarr"), default="hdf5", help="storage backend (default hdf5)")
     task.add_argument("--workers", type=positive_int, default=None, help="parallel workers (default: the CPU count)")
     task.add_argument("--executor", choices=("local", "ray"), default="local", help="a local process pool, or Ray tasks")
@@ -133,6 +133,8 @@ def run_task(args: argparse.Namespace) -> int:
                   + (" ..." if len(summary.failed_seeds) > 20 else ""))
         for line in summary.errors:
             print(f"error: {name}: {line}", file=sys.stderr)
+        if summary.stopped:
+            print(f"{name}: {summary.stopped}", file=sys.stderr)
         if have < args.episodes or summary.errors:
             status = 1
     return status

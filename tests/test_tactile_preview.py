@@ -80,4 +80,7 @@ def test_preview_errors_name_the_input(tmp_path: Path) -> None:
         preview.run(parse(["--sensor", "gf225", "--demo", "blob", "--out", out]))
     with pytest.raises(DatasetError, match="PATH"):
         preview.run(parse(["--out", out]))
+    for depth in ("nan", "0", "-1", "2.5"):  # NaN was a traceback; -1 and deeper than the gel drew a sheet
+        with pytest.raises(DatasetError, match=rf"--depth must be above 0 .* 2 mm \(got {depth.replace('.', '[.]')}"):
+            preview.run(parse(["--sensor", "gf225", "--demo", "sphere", "--depth", depth, "--out", out]))
     assert not Path(out).exists()

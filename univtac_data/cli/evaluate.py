@@ -44,7 +44,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--video", default=None, metavar="DIR",
                         help="write MP4s of the first rollouts to DIR (head camera beside both tactile images; "
                              "needs the [video] extra)")
-    parser.add_argument("--videos", type=int, default=3, help="how many rollouts --video records (default 3)")
+    parser.add_argument("--videos", type=positive_int, default=3, help="how many rollouts --video records (default 3)")
     return parser
 
 

@@ -67,6 +67,9 @@ def _demo_frames(sensor: str, demo: str, method: str, depth: float | None, n: in
     if demo not in DEMO_INDENTERS:
         raise DatasetError(f"--demo {demo}: unknown demo indenter; known: {', '.join(DEMO_INDENTERS)}")
     profile = get_sensor(sensor)
+    if depth is not None and not 0.0 < depth <= profile.gel_thickness_mm:  # NaN too
+        raise DatasetError(f"--depth must be above 0 and at most the {profile.display_name}'s gel thickness, "
+                           f"{profile.gel_thickness_mm:g} mm (got {depth})")
     final = depth if depth is not None else 0.5 * (profile.grasp_threshold_mm + profile.safe_indentation_mm)
     frames, state = [], None
     n = max(1, n)

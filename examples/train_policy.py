@@ -139,14 +139,13 @@ def demonstrations_sha256(path: str | Path, task: str, max_episodes: int | None 
     same code and seeds give the same fingerprint, and a policy run says which demonstrations it learnt from."""
     import hashlib
 
-    from univtac_data import CorruptFileError, Dataset, DatasetError
+    from univtac_data import CorruptFileError, DatasetError
 
+    dataset, rows = task_rows(path, task)
+    rows = rows[:max_episodes]
+    if not rows:
+        raise SystemExit(f"{path}: no episode of task {task!r}")
     try:
-        dataset = Dataset.open(path)
-        rows = sorted((row for row in dataset.index.values() if row.name == task), key=lambda row: row.seed)
-        rows = rows[:max_episodes]
-        if not rows:
-            raise SystemExit(f"{path}: no episode of task {task!r}")
         digest = hashlib.sha256()
         for row in rows:
             with dataset.open_episode(row.episode_id) as handle:
@@ -181,17 +180,22 @@ def history_rows(episode: torch.Tensor, history: int, step_rows: int) -> torch.T
     return torch.maximum(rows[:, None] - back[None], first[:, None])
 
 
-def episode_digests(path: str | Path, task: str) -> list[list[str]]:
-    """[episode_id, sha256] of ``task``'s episodes at ``path``, from the dataset's index (no episode is read):
-    the episode digest covers every byte of the episode's files, so demonstrations regenerated into the same
-    directory give other digests."""
+def task_rows(path: str | Path, task: str) -> tuple[Any, list[Any]]:
+    """The dataset at ``path`` and the index rows of ``task``'s episodes, in seed order (no episode is read)."""
     from univtac_data import CorruptFileError, Dataset, DatasetError
 
     try:
-        index = Dataset.open(path).index
+        dataset = Dataset.open(path)
     except (DatasetError, CorruptFileError) as err:  # each names the file and the problem
         raise SystemExit(str(err)) from None
-    return sorted([row.episode_id, row.sha256] for row in index.values() if row.name == task)
+    return dataset, sorted((row for row in dataset.index.values() if row.name == task), key=lambda row: row.seed)
+
+
+def episode_digests(path: str | Path, task: str) -> list[list[str]]:
+    """[episode_id, sha256] of ``task``'s episodes at ``path``, from the dataset's index: the episode digest
+    covers every byte of the episode's files, so demonstrations regenerated into the same directory give
+    other digests."""
+    return [[row.episode_id, row.sha256] for row in task_rows(path, task)[1]]
 
 
 def cached_demos(cache_path: str | None, data: str, task: str, config: PolicyConfig, stride: int,

@@ -240,3 +240,13 @@ def test_convert_finishes_a_partial_conversion_and_says_so(tmp_path):
     done = cli("convert", str(src), str(tmp_path / "z"), "--to", "zarr")
     assert done.returncode == 0 and "1 converted, 1 already converted, 0 failed" in done.stdout, done.stderr
     assert Dataset.open(tmp_path / "z").episode_ids == ["ep0", "ep1"]
+
+
+@pytest.mark.parametrize("rate", [0.0, -1.0, float("nan"), float("inf")])
+def test_the_simulation_refuses_a_recording_rate_it_would_never_reach(rate):
+    """Below the CLI: a NaN rate made the indenter episode loop forever; the simulation's config refuses it."""
+    from univtac_data.generators.scene.sim import SimConfig
+
+    with pytest.raises(ValueError, match="record_rate_hz must be a positive number of Hz"):
+        SimConfig(record_rate_hz=rate)
+    assert SimConfig(record_rate_hz=None).record_rate_hz is None

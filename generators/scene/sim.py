@@ -76,6 +76,11 @@ class SimConfig:
     # depth within the 1 um storage quantum as 1e-6, in two thirds of the time (docs/tactile.md).
     contact_tol: float = 1e-4
 
+    def __post_init__(self) -> None:
+        # a NaN or infinite rate never reaches the next recording time: the episode would run forever
+        if self.record_rate_hz is not None and not (math.isfinite(self.record_rate_hz) and self.record_rate_hz > 0):
+            raise ValueError(f"record_rate_hz must be a positive number of Hz (got {self.record_rate_hz})")
+
 
 def cell_steps(profile: SensorProfile, config: SimConfig) -> tuple[int, int]:
     """(elastic solver step, shear step) in image pixels for ``profile``: the configured cell sizes (mm)

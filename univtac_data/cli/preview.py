@@ -181,12 +181,13 @@ def _gallery_tiles(path: str, pad: str, limit: int) -> tuple[list[tuple[np.ndarr
     return tiles, f"{path}: {len(tiles)} of {len(dataset)} episodes, I_marked at {moment}", failed[: shown]
 
 
-def _write_atomic(out: str, suffix: str, write: Any) -> Any:
-    """Run ``write(tmp)`` into a temporary file beside ``out``, then rename it to ``out`` (no half file)."""
-    import os
-
+def _write_atomic(out: str, suffix: str, write: Any, make_folder: bool = False) -> Any:
+    """Run ``write(tmp)`` into a temporary file beside ``out``, then rename it to ``out`` (no half file).
+    ``make_folder``: make ``out``'s folder first if it does not exist."""
     target = os.path.abspath(out)
     folder = os.path.dirname(target)
+    if make_folder:
+        os.makedirs(folder, exist_ok=True)
     if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
         raise DatasetError(f"{out}: cannot write there (no such folder, or not writable)")
     tmp = os.path.join(folder, f".tmp-{os.getpid()}-{os.path.basename(target)}")
@@ -260,15 +261,13 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError("preview: give a dataset PATH, or --sensor NAME --demo INDENTER")
     elif args.gallery:
         tiles, title, failed = _gallery_tiles(args.path, args.pad, args.max_episodes)
-        os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-        _write_atomic(args.out, ".png", lambda tmp: image_gallery(tiles, tmp, title=title))
+        _write_atomic(args.out, ".png", lambda tmp: image_gallery(tiles, tmp, title=title), make_folder=True)
         print(f"wrote {args.out}")
         for line in failed:
             print(f"skipped: {line}", file=sys.stderr)
         return 1 if failed else 0
     else:
         frames, title = _dataset_frames(args.path, args.episode, args.frames, args.pad)
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    _write_atomic(args.out, ".png", lambda tmp: contact_sheet(frames, tmp, title=title))
+    _write_atomic(args.out, ".png", lambda tmp: contact_sheet(frames, tmp, title=title), make_folder=True)
     print(f"wrote {args.out}")
     return 0

@@ -125,14 +125,15 @@ def test_generate_is_resumable_after_a_kill_and_ends_identical(tmp_path):
                                  "--workers", "1"], stdout=log, stderr=log)
     index = tmp_path / "cut/meta/episodes.parquet"
     deadline = time.monotonic() + 300
+    # killed at the first committed episode: five more leave a loaded machine time to see it before the run ends
     while proc.poll() is None and time.monotonic() < deadline:
-        if index.exists() and len(Dataset.open(tmp_path / "cut")) >= 2:
+        if index.exists() and len(Dataset.open(tmp_path / "cut")) >= 1:
             os.kill(proc.pid, signal.SIGKILL)
             break
         time.sleep(0.02)
     proc.wait(timeout=60)
     assert proc.returncode == -signal.SIGKILL, (tmp_path / "log").read_text()
-    assert 2 <= len(Dataset.open(tmp_path / "cut")) < 6
+    assert 1 <= len(Dataset.open(tmp_path / "cut")) < 6
 
     resumed = cli(*ARGS, "--out", str(tmp_path / "cut"), "--workers", "2")
     assert resumed.returncode == 0, resumed.stderr
